@@ -1,0 +1,1 @@
+"""Checkpoint -> left.onnx + right.onnx + manifest.json (+ int8 variants)."""
