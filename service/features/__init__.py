@@ -9,8 +9,10 @@ from service.features.manifest import (
     verify_files,
     write_manifest,
 )
+from service.features.towers import FeatureTowers
 
 __all__ = [
+    "FeatureTowers",
     "ModelError",
     "default_model_dir",
     "file_entry",

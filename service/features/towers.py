@@ -1,0 +1,130 @@
+"""FeatureTowers: the left and right ONNX towers of a model folder, run in ONNX Runtime.
+
+The towers map a uint8 RGB image to L2-normalised features (C, H, W); padding is inside the graphs, so
+H and W are kept. Every file is checked against the manifest's sha256 before a session is created:
+a folder that differs from what was exported is refused rather than served.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
+
+logger = logging.getLogger("adsm")
+
+# Accelerated providers in order of preference; the CPU provider is always appended as the fallback.
+_PREFERRED_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider")
+
+
+def _default_threads() -> int:
+    # The CPUs this process may run on (cgroup/affinity aware on Linux), not the machine's core count.
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _pick_providers(requested: Sequence[str] | None) -> list[str]:
+    available = ort.get_available_providers()
+    if requested is not None:
+        unknown = [p for p in requested if p not in available]
+        if unknown:
+            raise ModelError(f"ONNX Runtime providers {unknown} are not available here (have {available})")
+        return list(requested)
+    picked = [p for p in _PREFERRED_PROVIDERS if p in available]
+    return [*picked, "CPUExecutionProvider"]
+
+
+class FeatureTowers:
+    """Left and right feature towers of one model folder.
+
+    ``threads`` sets ONNX Runtime's intra-op threads (default: the CPUs available to this process);
+    inter-op parallelism is 1 because each tower is one chain of convolutions. ``providers`` overrides
+    the automatic choice (TensorRT, then CUDA, then CPU).
+    """
+
+    def __init__(
+        self, folder: str | Path, *, threads: int | None = None, providers: Sequence[str] | None = None
+    ) -> None:
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.folder = Path(folder)
+        self.manifest: dict[str, Any] = load_manifest(self.folder)
+        verify_files(self.folder, self.manifest)
+        spec = self.manifest["input"]
+        low, high = (float(v) for v in spec["range"])
+        mean = np.asarray(spec["mean"], np.float32)
+        std = np.asarray(spec["std"], np.float32)
+        # uint8 -> range -> (x - mean) / std folded into one affine map per channel: x * gain + offset.
+        self._gain = ((high - low) / 255.0 / std).astype(np.float32)
+        self._offset = ((low - mean) / std).astype(np.float32)
+        self.channels = int(self.manifest["channels"])
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or _default_threads()
+        options.inter_op_num_threads = 1
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        chosen = _pick_providers(providers)
+        self._sessions = {}
+        for name in TOWER_FILES:
+            path = self.folder / name
+            try:
+                session = ort.InferenceSession(str(path), sess_options=options, providers=chosen)
+            except Exception as error:  # onnxruntime raises its own exception types
+                raise ModelError(f"ONNX Runtime cannot load {path}: {error}") from error
+            self._sessions[name] = session
+        self.providers: list[str] = self._sessions["left.onnx"].get_providers()
+        logger.info(
+            "feature towers %s (%s): providers %s, %d intra-op threads",
+            self.manifest["name"], self.folder, self.providers, options.intra_op_num_threads,
+        )
+
+    def _prepare(self, image: np.ndarray, side: str) -> np.ndarray:
+        if not (isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3
+                and image.shape[2] == 3):
+            raise ValueError(
+                f"{side} image must be a uint8 array of shape (H, W, 3), got "
+                f"{getattr(image, 'dtype', type(image).__name__)} {getattr(image, 'shape', '')}"
+            )
+        # One pass: the channel-first view is cast and scaled into a fresh contiguous NCHW buffer.
+        planar = image.transpose(2, 0, 1)
+        batch = np.empty((1, 3, *image.shape[:2]), np.float32)
+        np.multiply(planar, self._gain[:, None, None], out=batch[0], dtype=np.float32)
+        batch[0] += self._offset[:, None, None]
+        return batch
+
+    def _run(self, name: str, batch: np.ndarray) -> np.ndarray:
+        session = self._sessions[name]
+        (features,) = session.run(None, {session.get_inputs()[0].name: batch})
+        expected = (1, self.channels, *batch.shape[2:])
+        if features.shape != expected or features.dtype != np.float32:
+            raise ModelError(
+                f"{self.folder / name} returned {features.dtype} {features.shape}, "
+                f"expected float32 {expected}"
+            )
+        return features[0]
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Features of both views: two float32 arrays (C, H, W), unit L2 norm over C."""
+        if getattr(left, "shape", None) != getattr(right, "shape", None):
+            raise ValueError(
+                f"left and right images differ in size: {getattr(left, 'shape', None)} vs "
+                f"{getattr(right, 'shape', None)}"
+            )
+        left_batch = self._prepare(left, "left")
+        right_batch = self._prepare(right, "right")
+        return self._run("left.onnx", left_batch), self._run("right.onnx", right_batch)
+
+    def warmup(self, *, height: int = 64, width: int = 64) -> None:
+        """Run both towers once so the first request does not pay for session initialisation."""
+        blank = np.zeros((height, width, 3), np.uint8)
+        self(blank, blank)
