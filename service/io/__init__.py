@@ -1,0 +1,28 @@
+"""Input images and output disparity maps: decoding, encoding, colour visualisation."""
+
+from service.io.colormap import colorize, colorize_png
+from service.io.disparity import (
+    FORMATS,
+    MEDIA_TYPES,
+    encode_disparity,
+    format_for_path,
+    media_type,
+    read_disparity,
+    write_disparity,
+)
+from service.io.images import ImageDecodeError, ImageTooLargeError, read_image
+
+__all__ = [
+    "FORMATS",
+    "MEDIA_TYPES",
+    "ImageDecodeError",
+    "ImageTooLargeError",
+    "colorize",
+    "colorize_png",
+    "encode_disparity",
+    "format_for_path",
+    "media_type",
+    "read_disparity",
+    "read_image",
+    "write_disparity",
+]
