@@ -1,0 +1,126 @@
+"""Named tower configurations of the paper (Tables 1, 2 and 7) and the registry that lists them.
+
+A name reads like the paper's row: ``<patch>-<deconvs>-<convs>``, e.g. ``37-1deconv5-4conv`` is the left
+patch size 37 with one 5x5 transposed conv and four convs. Table 1 and 2 rows keep the printed kernel
+sizes; rows that cannot be built as printed carry a ``fix`` note (see docs/networks.md). Table 7 gives no
+kernel sizes, so they follow :func:`split_kernels`, the rule that reproduces every 3Conv/4Conv row of
+Tables 1 and 2 exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+DEFAULT_CONFIG = "37-1deconv5-4conv"  # the paper's best row (Table 6) and its recommended network
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TowerConfig:
+    """Geometry of one feature tower: stride-1 transposed convs (no padding), then valid convs."""
+
+    name: str
+    patch: int                    # side of the left training patch; the tower maps it to 1x1
+    deconv_kernels: tuple[int, ...]
+    conv_kernels: tuple[int, ...]
+    deconv_relu: bool             # Table 2: ReLU after a deconv only in 3Deconv&6Conv
+    table: str                    # where the row comes from in the paper
+    fix: str = ""                 # how a row that is impossible as printed was made buildable
+
+    def __post_init__(self) -> None:
+        if not self.conv_kernels or min(self.conv_kernels + self.deconv_kernels) < 1:
+            raise ValueError(f"{self.name}: needs at least one conv and positive kernel sizes")
+        if self.output_size(self.patch) != 1:
+            raise ValueError(f"{self.name}: a {self.patch}x{self.patch} patch maps to "
+                             f"{self.output_size(self.patch)}x{self.output_size(self.patch)}, not 1x1")
+
+    @property
+    def receptive_field(self) -> int:
+        """Side of the input square that determines one output feature vector (the patch size)."""
+        return self.patch
+
+    def output_size(self, size: int) -> int:
+        """Output side for an input side in training ('valid') mode: eq. (11) then eq. (10), s=1, p=0."""
+        grown = size + sum(k - 1 for k in self.deconv_kernels)
+        return grown - sum(k - 1 for k in self.conv_kernels)
+
+    def conv_weight_count(self, channels: int = 64) -> int:
+        """Conv + deconv weights of one tower (no biases, no BN), the count of Tables 4 and 5."""
+        kernels = self.deconv_kernels + self.conv_kernels
+        first, rest = kernels[0], kernels[1:]
+        return 3 * first * first * channels + sum(k * k for k in rest) * channels * channels
+
+
+def split_kernels(reduction: int, layers: int) -> tuple[int, ...]:
+    """Kernel sizes of ``layers`` valid convs that shrink a side by ``reduction`` pixels.
+
+    The shrink is shared as evenly as possible, larger kernels first. This is the paper's own choice for
+    3Conv (13,13,13), 4Conv (10,10,10,10), 1Deconv(5)&4Conv (11,11,11,11) and 1Deconv(3)&4Conv
+    (11,11,10,10), and the rule used for the Table 7 rows, whose kernels the paper does not print.
+    """
+    if layers < 1 or reduction < layers:
+        raise ValueError(f"cannot shrink by {reduction} pixels with {layers} convs of kernel >= 2")
+    base, extra = divmod(reduction, layers)
+    return tuple(base + 1 + (1 if index < extra else 0) for index in range(layers))
+
+
+def _ruled(patch: int, deconvs: tuple[int, ...], convs: int) -> TowerConfig:
+    """A Table 7 row: kernels from :func:`split_kernels`, no ReLU after a single deconv (as Table 2)."""
+    reduction = patch - 1 + sum(k - 1 for k in deconvs)
+    deconv_part = f"{len(deconvs)}deconv{deconvs[0]}-" if deconvs else ""
+    return TowerConfig(name=f"{patch}-{deconv_part}{convs}conv", patch=patch, deconv_kernels=deconvs,
+                       conv_kernels=split_kernels(reduction, convs), deconv_relu=False, table="Table 7")
+
+
+_PRINTED = (
+    # Table 1: convs only, left patch 37 (Table 4 counts).
+    TowerConfig(name="37-3conv", patch=37, deconv_kernels=(), conv_kernels=(13, 13, 13),
+                deconv_relu=False, table="Table 1"),
+    TowerConfig(name="37-4conv", patch=37, deconv_kernels=(), conv_kernels=(10, 10, 10, 10),
+                deconv_relu=False, table="Table 1"),
+    TowerConfig(name="37-6conv", patch=37, deconv_kernels=(), conv_kernels=(9, 9, 7, 7, 5, 5),
+                deconv_relu=False, table="Table 1"),
+    TowerConfig(name="37-7conv", patch=37, deconv_kernels=(), conv_kernels=(7, 7, 7, 7, 5, 5, 5),
+                deconv_relu=False, table="Table 1"),
+    TowerConfig(name="37-9conv", patch=37, deconv_kernels=(), conv_kernels=(5,) * 9, deconv_relu=False,
+                table="Table 1", fix="Table 4 prints 721,600 weights, the count of 8 convs (37->5); "
+                "the 9 printed 5x5 convs are kept (37->1, 824,000 weights)"),
+    TowerConfig(name="37-11conv", patch=37, deconv_kernels=(), conv_kernels=(5,) * 7 + (3,) * 4,
+                deconv_relu=False, table="Table 1", fix="Table 4 prints 627,932 weights, not a multiple of "
+                "64 so no bias-free 64-channel tower has it; the printed kernels are kept (766,656)"),
+    # Table 2: deconvs then convs, left patch 37 (Table 5 counts).
+    TowerConfig(name="37-1deconv5-4conv", patch=37, deconv_kernels=(5,), conv_kernels=(11, 11, 11, 11),
+                deconv_relu=False, table="Table 2"),
+    TowerConfig(name="37-1deconv3-4conv", patch=37, deconv_kernels=(3,), conv_kernels=(11, 11, 10, 10),
+                deconv_relu=False, table="Table 2"),
+    TowerConfig(name="37-2deconv-6conv", patch=37, deconv_kernels=(3, 5), conv_kernels=(9, 9, 9, 7, 7, 7),
+                deconv_relu=False, table="Table 2"),
+    TowerConfig(name="37-3deconv-6conv", patch=37, deconv_kernels=(3, 5, 7),
+                conv_kernels=(11, 11, 9, 9, 7, 7), deconv_relu=True, table="Table 2",
+                fix="printed with 5 convs (9,9,9,7,7: 37->49->13) and a count of 1,902,182 that matches "
+                "6 convs 9,9,9,7,7,7 (1,902,272, ending at 7x7); the first two convs grow by the 6 pixels "
+                "the Deconv7 adds (11,11,9,9,7,7: 49->1, 2,361,024 weights)"),
+)
+
+_TABLE7 = (
+    _ruled(29, (), 3), _ruled(29, (), 4), _ruled(29, (), 5), _ruled(29, (), 7),
+    _ruled(29, (3,), 4), _ruled(29, (2,), 4),
+    _ruled(33, (), 4), _ruled(33, (), 8), _ruled(33, (3,), 4), _ruled(33, (5,), 4),
+    _ruled(41, (), 4), _ruled(41, (), 5), _ruled(41, (), 8), _ruled(41, (), 10),
+    _ruled(41, (3,), 4), _ruled(41, (5,), 4),
+    _ruled(45, (), 4), _ruled(45, (), 5), _ruled(45, (), 8), _ruled(45, (3,), 4),
+)
+
+CONFIGS: dict[str, TowerConfig] = {config.name: config for config in _PRINTED + _TABLE7}
+
+
+def list_configs() -> list[str]:
+    """Every named configuration, in the paper's table order."""
+    return list(CONFIGS)
+
+
+def get_config(name: str) -> TowerConfig:
+    """The configuration called ``name``; a clear error lists the known names."""
+    try:
+        return CONFIGS[name]
+    except KeyError:
+        raise ValueError(f"unknown network config {name!r}; known: {', '.join(CONFIGS)}") from None

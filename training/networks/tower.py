@@ -1,0 +1,85 @@
+"""One ADSM feature tower: stride-1 transposed convs, valid convs, L2-normalised features.
+
+Training mode is 'valid': a PxP patch maps to 1x1 and a Px(P+200) strip to 1x201, as in the paper.
+Dense inference pads the image by half the receptive field first (:func:`dense_features`), which is exactly
+the valid tower applied to every patch of the padded image, so train and deploy see the same function.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from training.networks.configs import TowerConfig
+
+NORM_EPS = 1e-12  # as torch.nn.functional.normalize; the ONNX graph uses the same floor
+
+
+def l2_normalize(features: torch.Tensor) -> torch.Tensor:
+    """Features / max(||features||_C, eps): the last op of every tower, so <fl, fr> is a cosine."""
+    squared = (features * features).sum(dim=1, keepdim=True)
+    return features / torch.sqrt(squared.clamp_min(NORM_EPS * NORM_EPS))
+
+
+class FeatureTower(nn.Module):
+    """Maps [N, 3, H, W] to L2-normalised features [N, C, H - rf + 1, W - rf + 1] (rf = receptive field).
+
+    BN + ReLU follow every layer but the last; Table 2 puts no ReLU after the deconvs of the 1- and
+    2-Deconv rows (``config.deconv_relu``). No layer has a bias: BN supplies the shift, and the paper's
+    weight counts (Tables 4, 5) include none, not even for the last layer.
+    """
+
+    def __init__(self, config: TowerConfig, *, channels: int = 64) -> None:
+        super().__init__()
+        if channels < 1:
+            raise ValueError(f"channels must be >= 1, got {channels}")
+        self.config = config
+        self.channels = channels
+        layers: list[nn.Module] = []
+        in_channels = 3
+        kernels = [(k, True) for k in config.deconv_kernels] + [(k, False) for k in config.conv_kernels]
+        for index, (kernel, is_deconv) in enumerate(kernels):
+            last = index == len(kernels) - 1
+            conv_type = nn.ConvTranspose2d if is_deconv else nn.Conv2d
+            layers.append(conv_type(in_channels, channels, kernel, bias=False))
+            if not last:
+                layers.append(nn.BatchNorm2d(channels))
+                if not is_deconv or config.deconv_relu:
+                    layers.append(nn.ReLU(inplace=True))
+            in_channels = channels
+        self.layers = nn.Sequential(*layers)
+
+    @property
+    def receptive_field(self) -> int:
+        return self.config.receptive_field
+
+    def forward(self, image: torch.Tensor) -> torch.Tensor:
+        if image.ndim != 4 or image.shape[1] != 3:
+            raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
+        rf = self.receptive_field
+        if image.shape[2] < rf or image.shape[3] < rf:
+            raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the receptive field {rf}")
+        return l2_normalize(self.layers(image))
+
+    def conv_weight_count(self) -> int:
+        """Conv and deconv weights (the count of Tables 4 and 5; BN parameters excluded)."""
+        return sum(m.weight.numel() for m in self.modules() if isinstance(m, nn.Conv2d | nn.ConvTranspose2d))
+
+
+def same_padding(receptive_field: int) -> tuple[int, int, int, int]:
+    """(left, right, top, bottom) padding that makes a valid tower keep H x W; odd fields centre exactly."""
+    before = (receptive_field - 1) // 2
+    after = receptive_field - 1 - before
+    return (before, after, before, after)
+
+
+def dense_features(tower: FeatureTower, image: torch.Tensor) -> torch.Tensor:
+    """Features for every pixel, [N, C, H, W]: replicate-pad by half the receptive field, then the tower.
+
+    Replicate ('edge') padding extends border texture instead of inventing black bars that would match
+    each other across the two views; the exported ONNX graph pads the same way.
+    """
+    if image.ndim != 4:
+        raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
+    return tower(F.pad(image, same_padding(tower.receptive_field), mode="replicate"))
