@@ -1,0 +1,79 @@
+"""Winner-takes-all: the disparity of least cost per pixel (ties go to the smaller disparity, as argmin).
+
+:func:`left_right_winners` also finds the right view's winners from the *left* volume in the same pass
+(``CR[y, x, d] = CL[y, x + d, d]``, the inner check of MC-CNN): each cell ``(x, d)`` read for the left
+argmin is the cell ``(x - d, d)`` of the right view, so one row-major sweep serves both and the volume is
+read once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from service.jit import njit
+
+
+@njit(parallel=True)
+def _winners(volume, left):
+    height, width, disparities = volume.shape
+    for y in prange(height):
+        for x in range(width):
+            costs = volume[y, x]
+            best = 0
+            best_cost = costs[0]
+            for d in range(1, disparities):
+                if costs[d] < best_cost:
+                    best_cost = costs[d]
+                    best = d
+            left[y, x] = best
+
+
+@njit(parallel=True)
+def _left_right_winners(volume, left, right):
+    height, width, disparities = volume.shape
+    for y in prange(height):
+        right_best = np.empty(width, np.float32)
+        for x in range(width):
+            costs = volume[y, x]
+            best = 0
+            best_cost = costs[0]
+            for d in range(1, disparities):
+                if costs[d] < best_cost:
+                    best_cost = costs[d]
+                    best = d
+            left[y, x] = best
+            # Right pixel x is first seen here (d = 0); later x reach it with growing d, so a strict <
+            # keeps the smallest d on ties.
+            right_best[x] = costs[0]
+            right[y, x] = 0
+            for d in range(1, min(disparities, x + 1)):
+                if costs[d] < right_best[x - d]:
+                    right_best[x - d] = costs[d]
+                    right[y, x - d] = d
+
+
+def _check(volume: np.ndarray) -> np.ndarray:
+    if volume.ndim != 3 or min(volume.shape) < 1:
+        raise ValueError(f"cost volume must be a non-empty (H, W, D) array, got shape {volume.shape}")
+    return np.ascontiguousarray(volume, dtype=np.float32)
+
+
+def winner_takes_all(volume: np.ndarray) -> np.ndarray:
+    """int32 HxW argmin over d of an ``(H, W, D)`` cost volume."""
+    volume = _check(volume)
+    left = np.empty(volume.shape[:2], np.int32)
+    _winners(volume, left)
+    return left
+
+
+def left_right_winners(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """int32 HxW winners of the left view and of the right view, both from the left ``(H, W, D)`` volume.
+
+    ``right[y, x] = argmin_d volume[y, x + d, d]`` over the disparities with ``x + d < W``.
+    """
+    volume = _check(volume)
+    left = np.empty(volume.shape[:2], np.int32)
+    right = np.empty(volume.shape[:2], np.int32)
+    _left_right_winners(volume, left, right)
+    return left, right

@@ -1,0 +1,89 @@
+"""Ray filling of invalid pixels (MC-CNN's post-processing, used by ADSM).
+
+From every invalid pixel, 16 rays go out at multiples of 22.5 degrees; each ray steps one pixel along its
+major axis (directions as in MC-CNN: components in {0, +-0.5, +-1}) until it meets a pixel that passed the
+left-right check. Only checked-valid pixels are read, never freshly filled ones, so the result does not
+depend on the order of the pixels.
+
+- Occlusion: the smallest disparity among the rays' first valid pixels. An occluded pixel belongs to the
+  surface behind the occluder, and the background is the farthest, i.e. smallest-disparity, neighbour.
+  MC-CNN only looks along the horizontal ray to the left; the 16 rays also find the background where the
+  left ray runs into the image border or into another occluder, at the price of trusting the single
+  smallest value.
+- Mismatch: the median (upper median for an even count, as MC-CNN) of the rays' first valid pixels.
+- No ray finds a valid pixel: NaN and ``Validity.NO_DATA``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from service.jit import njit
+from service.validation.codes import FILLED, MISMATCH, NO_DATA, OCCLUDED, VALID
+
+_DIRECTIONS = np.array(
+    [
+        [1.0, 0.0], [1.0, 0.5], [1.0, 1.0], [0.5, 1.0],
+        [0.0, 1.0], [-0.5, 1.0], [-1.0, 1.0], [-1.0, 0.5],
+        [-1.0, 0.0], [-1.0, -0.5], [-1.0, -1.0], [-0.5, -1.0],
+        [0.0, -1.0], [0.5, -1.0], [1.0, -1.0], [1.0, -0.5],
+    ],
+    np.float32,
+)  # (dx, dy)
+
+
+@njit(parallel=True)
+def _fill_rows(disparity, validity, directions, filled, filled_validity):
+    height, width = disparity.shape
+    rays = directions.shape[0]
+    for y in prange(height):
+        found = np.empty(rays, np.float32)
+        for x in range(width):
+            cause = validity[y, x]
+            if cause != OCCLUDED and cause != MISMATCH:
+                continue
+            count = 0
+            for ray in range(rays):
+                dx = directions[ray, 0]
+                dy = directions[ray, 1]
+                step = 1
+                while True:
+                    # floor(t + 0.5): round half up, so half-slope rays advance on every other step.
+                    xx = x + int(np.floor(step * dx + 0.5))
+                    yy = y + int(np.floor(step * dy + 0.5))
+                    if xx < 0 or xx >= width or yy < 0 or yy >= height:
+                        break
+                    if validity[yy, xx] == VALID:
+                        found[count] = disparity[yy, xx]
+                        count += 1
+                        break
+                    step += 1
+            if count == 0:
+                filled[y, x] = np.nan
+                filled_validity[y, x] = NO_DATA
+                continue
+            values = np.sort(found[:count])
+            filled[y, x] = values[0] if cause == OCCLUDED else values[count // 2]
+            filled_validity[y, x] = cause | FILLED
+
+
+def fill_invalid(disparity: np.ndarray, validity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fill the OCCLUDED and MISMATCH pixels of a float32 HxW disparity; returns new (disparity, validity).
+
+    Filled pixels get ``FILLED_OCCLUSION`` / ``FILLED_MISMATCH``, unfillable ones NaN and ``NO_DATA``;
+    every other pixel is copied unchanged.
+    """
+    if disparity.ndim != 2 or disparity.shape != validity.shape:
+        raise ValueError(f"disparity {disparity.shape} and validity {validity.shape} must be HxW, same shape")
+    disparity = np.ascontiguousarray(disparity, dtype=np.float32)
+    validity = np.ascontiguousarray(validity, dtype=np.uint8)
+    filled = disparity.copy()
+    filled_validity = validity.copy()
+    if np.any(validity == VALID):
+        _fill_rows(disparity, validity, _DIRECTIONS, filled, filled_validity)
+    else:  # nothing to fill from: skip 16 rays to the border from every pixel
+        invalid = (validity == OCCLUDED) | (validity == MISMATCH)
+        filled[invalid] = np.nan
+        filled_validity[invalid] = NO_DATA
+    return filled, filled_validity

@@ -1,0 +1,42 @@
+"""Quadratic sub-pixel fit: the vertex of the parabola through the costs at ``d - 1``, ``d``, ``d + 1``.
+
+    d* = d + (C[d-1] - C[d+1]) / (2 (C[d-1] - 2 C[d] + C[d+1]))
+
+Applied only where both neighbours exist and the parabola opens upwards (denominator > 0); the offset is
+clamped to +-0.5 so a refined value never leaves its winner's pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from service.jit import njit
+
+
+@njit(parallel=True)
+def _refine_rows(volume, winners, refined):
+    height, width, disparities = volume.shape
+    for y in prange(height):
+        for x in range(width):
+            d = winners[y, x]
+            refined[y, x] = d
+            if 0 < d < disparities - 1:
+                before = volume[y, x, d - 1]
+                after = volume[y, x, d + 1]
+                curvature = before - 2.0 * volume[y, x, d] + after
+                if curvature > 0.0:
+                    offset = (before - after) / (2.0 * curvature)
+                    refined[y, x] = d + min(0.5, max(-0.5, offset))
+
+
+def refine_subpixel(volume: np.ndarray, winners: np.ndarray) -> np.ndarray:
+    """float32 HxW sub-pixel disparities from an ``(H, W, D)`` cost volume and its int HxW winners."""
+    if volume.ndim != 3 or winners.shape != volume.shape[:2]:
+        raise ValueError(f"winners {winners.shape} do not match the cost volume {volume.shape}")
+    winners = np.ascontiguousarray(winners, dtype=np.int32)
+    if winners.size and (winners.min() < 0 or winners.max() >= volume.shape[2]):
+        raise ValueError(f"winners must lie in [0, {volume.shape[2] - 1}]")
+    refined = np.empty(winners.shape, np.float32)
+    _refine_rows(np.ascontiguousarray(volume, dtype=np.float32), winners, refined)
+    return refined

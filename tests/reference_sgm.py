@@ -1,0 +1,38 @@
+"""Slow, obviously correct NumPy reference of the runtime's 4-path SGM (eq. (20) of the ADSM paper).
+
+Loops over pixels in float64, one path at a time; only for tests on small volumes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _path(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
+    """Eq. (20) along axis 1 of a (lines, length, D) volume, from index 0 upwards."""
+    lines, length, disparities = cost.shape
+    result = np.empty(cost.shape, np.float64)
+    for line in range(lines):
+        result[line, 0] = cost[line, 0]
+        for i in range(1, length):
+            previous = result[line, i - 1]
+            previous_min = previous.min()
+            for d in range(disparities):
+                candidates = [previous[d], previous_min + p2]
+                if d > 0:
+                    candidates.append(previous[d - 1] + p1)
+                if d < disparities - 1:
+                    candidates.append(previous[d + 1] + p1)
+                result[line, i, d] = cost[line, i, d] + min(candidates) - previous_min
+    return result
+
+
+def reference_sgm(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
+    """Sum over the 4 paths left->right, right->left, top->bottom, bottom->top of an (H, W, D) volume."""
+    cost = np.asarray(cost, np.float64)
+    left_to_right = _path(cost, p1, p2)
+    right_to_left = _path(cost[:, ::-1], p1, p2)[:, ::-1]
+    columns = cost.transpose(1, 0, 2)
+    top_to_bottom = _path(columns, p1, p2).transpose(1, 0, 2)
+    bottom_to_top = _path(columns[:, ::-1], p1, p2)[:, ::-1].transpose(1, 0, 2)
+    return left_to_right + right_to_left + top_to_bottom + bottom_to_top

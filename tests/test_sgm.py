@@ -1,0 +1,76 @@
+"""Numba SGM against the NumPy reference, on random volumes and edge shapes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from reference_sgm import reference_sgm
+
+from service.optimization import aggregate
+
+SCALE = 128.0
+
+
+def _random_cost(shape: tuple[int, int, int], seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(-SCALE, SCALE, shape).astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "shape",
+    [(7, 9, 5), (13, 40, 16), (1, 12, 6), (10, 1, 6), (8, 11, 1), (5, 4, 9), (1, 1, 1), (1, 1, 7),
+     (40, 3, 2)],
+    ids=lambda shape: "x".join(map(str, shape)),
+)
+@pytest.mark.parametrize(("p1", "p2"), [(30.0, 160.0), (0.0, 0.0), (5.0, 300.0)])
+def test_matches_reference(shape: tuple[int, int, int], p1: float, p2: float) -> None:
+    cost = _random_cost(shape, seed=sum(shape))
+    expected = reference_sgm(cost, p1, p2)
+    result = aggregate(cost, p1=p1, p2=p2)
+    assert result.shape == shape and result.dtype == np.float32
+    # float32 runtime vs float64 reference: relative 1e-4 of the volume's magnitude.
+    np.testing.assert_allclose(result, expected, rtol=1e-4, atol=1e-4 * np.abs(expected).max())
+
+
+def test_wide_column_blocks_match_reference() -> None:
+    # More columns than one vertical task holds, and a ragged last block.
+    cost = _random_cost((6, 75, 4), seed=3)
+    expected = reference_sgm(cost, 30, 160)
+    np.testing.assert_allclose(aggregate(cost, p1=30, p2=160), expected, rtol=1e-4, atol=0.05)
+
+
+def test_first_pixel_of_every_path_is_its_cost() -> None:
+    # A single pixel is the first pixel of all 4 paths: the sum is 4 C.
+    cost = _random_cost((1, 1, 5), seed=1)
+    np.testing.assert_allclose(aggregate(cost, p1=30, p2=160), 4 * cost, rtol=1e-6)
+
+
+def test_smooths_a_noisy_winner() -> None:
+    # A constant-disparity scene with one pixel whose raw minimum is wrong: SGM restores the majority.
+    cost = np.full((9, 9, 8), 50.0, np.float32)
+    cost[:, :, 3] = -50.0
+    cost[4, 4, 3] = 60.0
+    cost[4, 4, 6] = 40.0
+    assert cost[4, 4].argmin() != 3
+    assert aggregate(cost, p1=30, p2=160)[4, 4].argmin() == 3
+
+
+def test_out_argument_is_used() -> None:
+    cost = _random_cost((4, 5, 3), seed=2)
+    out = np.empty_like(cost)
+    assert aggregate(cost, p1=30, p2=160, out=out) is out
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"p1": -1.0, "p2": 1.0}, "p1"), ({"p1": 1.0, "p2": float("nan")}, "p2")],
+)
+def test_rejects_bad_penalties(kwargs: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        aggregate(_random_cost((2, 2, 2), seed=0), **kwargs)
+
+
+def test_rejects_bad_shapes() -> None:
+    with pytest.raises(ValueError, match="cost volume"):
+        aggregate(np.zeros((3, 4), np.float32), p1=1, p2=2)
+    with pytest.raises(ValueError, match="out"):
+        aggregate(np.zeros((3, 4, 2), np.float32), p1=1, p2=2, out=np.zeros((3, 4, 3), np.float32))
