@@ -63,7 +63,7 @@ def test_accepts_non_contiguous_float64_features(rng) -> None:
 
 def test_rejects_bad_arguments(rng) -> None:
     features = unit_features(rng, 2, 3, 4)
-    with pytest.raises(ValueError, match="same shape|one shape"):
+    with pytest.raises(ValueError, match="one shape"):
         cost_volume(features, features[:, :2], 2, scale=1.0)
     with pytest.raises(ValueError, match="max_disparity"):
         cost_volume(features, features, 0, scale=1.0)
