@@ -1,0 +1,178 @@
+"""int8 twin of an exported model folder: static QDQ quantization and its measured accuracy against fp32.
+
+ONNX Runtime's ``quantize_static`` inserts QuantizeLinear/DequantizeLinear around every Conv: int8
+weights per output channel, uint8 activations per tensor with MinMax ranges calibrated on stereo-like
+views (an image and the same image seen 8 pixels further right). The padding and the final L2
+normalisation stay fp32. No stereo data set exists on these machines, so the default calibration uses
+photographs and textures shipped inside scikit-image; the evaluation pair (Cones) is refused.
+
+The accuracy is measured on a held-out photograph (never in the calibration set), warped by a known
+disparity ramp into a right view: per-pixel cosine between fp32 and int8 features, and the share of
+pixels whose disparity from the Matcher agrees within 1 px. Both go into the int8 manifest.
+"""
+
+from __future__ import annotations
+
+import glob
+import importlib.util
+import json
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnx
+from onnxruntime.quantization import (
+    CalibrationDataReader,
+    CalibrationMethod,
+    QuantFormat,
+    QuantType,
+    quantize_static,
+)
+from onnxruntime.quantization.shape_inference import quant_pre_process
+
+from service.features.manifest import TOWER_FILES, load_manifest, write_manifest
+from service.features.towers import FeatureTowers
+from service.io import read_image
+
+DEFAULT_CALIBRATION = "skimage:astronaut,chelsea,rocket,brick,gravel"
+HELD_OUT = "skimage:coffee"          # accuracy image, never part of the default calibration
+CALIBRATION_SHIFT = 8                # px between the two calibration views
+CROP = (192, 256)                    # calibration crop (H, W): large enough for the 45 px receptive fields
+EVALUATION_ONLY = ("middlebury2003-cones",)
+CALIBRATION_HELP = (
+    "calibration images for --int8: 'skimage' or 'skimage:NAME,NAME' (images shipped in scikit-image's "
+    "data folder, by file stem), a folder of images, or a glob pattern (default: %(default)s). Each image "
+    f"gives a left view and a right view {CALIBRATION_SHIFT} px to the right. The accuracy check uses "
+    f"{HELD_OUT}, which must not be among them."
+)
+
+
+def calibration_images(spec: str) -> list[tuple[str, np.ndarray]]:
+    """(name, uint8 HxWx3) for a calibration SPEC (see ``CALIBRATION_HELP``)."""
+    if spec == "skimage" or spec.startswith("skimage:"):
+        folder = _skimage_data()
+        stems = [s for s in spec.partition(":")[2].split(",") if s] or DEFAULT_CALIBRATION[8:].split(",")
+        paths = []
+        for stem in stems:
+            found = sorted(folder.glob(f"{stem}.*"))
+            if not found:
+                known = sorted({p.stem for p in folder.iterdir() if p.suffix in {".png", ".jpg"}})
+                raise ValueError(f"no scikit-image data image {stem!r}; known: {', '.join(known)}")
+            paths.append(found[0])
+    elif Path(spec).is_dir():
+        paths = sorted(p for p in Path(spec).iterdir() if p.suffix.lower() in
+                       {".png", ".jpg", ".jpeg", ".ppm", ".pgm", ".tif", ".tiff", ".bmp"})
+    else:
+        paths = sorted(Path(p) for p in glob.glob(spec))
+    if not paths:
+        raise ValueError(f"calibration spec {spec!r} names no images")
+    if refused := [p for p in paths if any(part in EVALUATION_ONLY for part in p.resolve().parts)]:
+        raise ValueError(f"{refused[0]} belongs to an evaluation-only data set; never calibrate on it")
+    return [(p.stem, read_image(p, name=str(p))) for p in paths]
+
+
+def stereo_views(image: np.ndarray, *, shift: int = CALIBRATION_SHIFT) -> tuple[np.ndarray, np.ndarray]:
+    """A centred crop and the same crop taken ``shift`` px further right (a right camera's view)."""
+    height, width = min(CROP[0], image.shape[0]), min(CROP[1], image.shape[1] - shift)
+    top, left = (image.shape[0] - height) // 2, (image.shape[1] - shift - width) // 2
+    return (image[top:top + height, left:left + width],
+            image[top:top + height, left + shift:left + shift + width])
+
+
+def ramp_pair(image: np.ndarray, *, low: float = 4.0, high: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
+    """A right view whose disparity grows row by row from ``low`` to ``high`` px (linear interpolation)."""
+    left = image[:CROP[0], :CROP[1] + int(high) + 1].astype(np.float32)
+    columns = np.arange(left.shape[1], dtype=np.float32)
+    right = np.empty_like(left)
+    for row, disparity in enumerate(np.linspace(low, high, left.shape[0], dtype=np.float32)):
+        for channel in range(3):  # right(x) = left(x + d): the right camera sees the scene shifted left
+            right[row, :, channel] = np.interp(columns + disparity, columns, left[row, :, channel])
+    keep = CROP[1]
+    return (left[:, :keep].round().astype(np.uint8), right[:, :keep].round().astype(np.uint8))
+
+
+class _Views(CalibrationDataReader):
+    """Feeds normalised [1, 3, H, W] views to the calibrator, as the runtime would."""
+
+    def __init__(self, views: list[np.ndarray], input_spec: dict[str, Any]) -> None:
+        low, high = input_spec["range"]
+        mean = np.asarray(input_spec["mean"], np.float32)[:, None, None]
+        std = np.asarray(input_spec["std"], np.float32)[:, None, None]
+        scale = (high - low) / 255.0
+        self._batches: Iterator[dict[str, np.ndarray]] = iter(
+            {"image": ((v.transpose(2, 0, 1) * scale + low - mean) / std)[None].astype(np.float32)}
+            for v in views)
+
+    def get_next(self) -> dict[str, np.ndarray] | None:
+        return next(self._batches, None)
+
+
+def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: str = DEFAULT_CALIBRATION,
+                    log: Callable[[str], Any] = lambda _: None) -> Path:
+    """Write the int8 twin of ``fp32_folder`` into ``out``; returns its manifest path."""
+    fp32_folder, out = Path(fp32_folder), Path(out)
+    manifest = load_manifest(fp32_folder)
+    images = calibration_images(calibration)
+    held_out_name, held_out = calibration_images(HELD_OUT)[0]
+    if any(name == held_out_name for name, _ in images):
+        raise ValueError(f"{HELD_OUT} is the accuracy image; leave it out of the calibration set")
+    pairs = [stereo_views(image) for _, image in images]
+    out.mkdir(parents=True, exist_ok=True)
+    for index, file_name in enumerate(TOWER_FILES):
+        views = [pair[index] for pair in pairs]
+        with tempfile.TemporaryDirectory(prefix="adsm-quantize-") as scratch:
+            # ONNX Runtime's recommended pre-pass: shape inference and graph clean-up before QDQ insertion.
+            prepared = Path(scratch) / file_name
+            quant_pre_process(str(fp32_folder / file_name), str(prepared))
+            quantize_static(prepared, out / file_name, _Views(views, manifest["input"]),
+                            quant_format=QuantFormat.QDQ, op_types_to_quantize=["Conv"], per_channel=True,
+                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
+                            calibrate_method=CalibrationMethod.MinMax)
+        onnx.checker.check_model(str(out / file_name), full_check=True)
+        log(f"quantized {file_name}: {len(views)} calibration views from {calibration}")
+    name = manifest["name"][:60] + "-int8"
+    int8 = {**manifest, "name": name, "description": manifest.get("description", "") + "; int8 QDQ"}
+    int8["onnx"] = {**manifest["onnx"], "precision": "int8", "quantization": {
+        "method": "onnxruntime static QDQ: per-channel int8 weights, per-tensor uint8 activations (MinMax)",
+        "calibration": calibration, "calibration_images": [name for name, _ in images],
+        "calibration_views": f"centred crops up to {CROP[0]}x{CROP[1]}, right view {CALIBRATION_SHIFT} px "
+                             "to the right"}}
+    write_manifest(out, int8)
+    accuracy = measure_accuracy(fp32_folder, out, held_out, held_out_name)
+    int8["onnx"]["quantization"]["accuracy_vs_fp32"] = accuracy
+    log(f"int8 vs fp32 on held-out {held_out_name}: {json.dumps(accuracy)}")
+    return write_manifest(out, int8)
+
+
+def measure_accuracy(fp32_folder: Path, int8_folder: Path, image: np.ndarray, name: str) -> dict[str, Any]:
+    """Feature cosine (per tower) and 1-px disparity agreement of int8 against fp32 on a ramp pair."""
+    left, right = ramp_pair(image)
+    fp32, int8 = FeatureTowers(fp32_folder, threads=None), FeatureTowers(int8_folder, threads=None)
+    result: dict[str, Any] = {"pair": f"{name} {left.shape[0]}x{left.shape[1]}, right view warped by a "
+                                      "4..12 px disparity ramp"}
+    for side, reference, quantized in zip(("left", "right"), fp32(left, right), int8(left, right),
+                                          strict=True):
+        cosine = (reference * quantized).sum(axis=0)  # both unit vectors per pixel
+        result[f"feature_cosine_{side}"] = {"mean": round(float(cosine.mean()), 5),
+                                            "p01": round(float(np.percentile(cosine, 1)), 5)}
+    if importlib.util.find_spec("service.matcher") is None:
+        result["disparity_agreement_1px"] = None  # runtime without a matcher: features only
+        return result
+    from service.matcher import Matcher
+
+    disparities = [Matcher.from_folder(f)(left, right).disparity for f in (fp32_folder, int8_folder)]
+    both = np.isfinite(disparities[0]) & np.isfinite(disparities[1])
+    agree = both & (np.abs(disparities[0] - disparities[1]) <= 1.0)
+    result["disparity_agreement_1px"] = round(float(agree.sum() / max(both.sum(), 1)), 5)
+    result["disparity_both_defined"] = round(float(both.mean()), 5)
+    return result
+
+
+def _skimage_data() -> Path:
+    """scikit-image's bundled data folder, found without importing scikit-image."""
+    spec = importlib.util.find_spec("skimage")
+    if spec is None or not spec.submodule_search_locations:
+        raise ValueError("calibration 'skimage' needs scikit-image (pip install '.[train]')")
+    return Path(next(iter(spec.submodule_search_locations))) / "data"
