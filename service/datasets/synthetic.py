@@ -1,0 +1,193 @@
+"""Synthetic stereo pairs with exact ground truth: random layered scenes, rendered, then photographed.
+
+A scene (see ``scene.py``) holds 1-3 slanted background planes, often a ground plane, objects (ellipses,
+rectangles, star polygons) at nearer, slightly slanted depths, and thin structures (poles, wires, fences).
+Every surface gets a procedural or photo texture (``textures.py``), each view its own camera effects
+(``photometric.py``). Everything is drawn from ``numpy.random.default_rng(seed)``: a seed is a pair.
+
+Seeds from ``VALIDATION_SEED`` on are the fixed validation split (``validation_split``); training must
+draw its seeds below it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from .photometric import Photometric, apply_camera
+from .sample import StereoSample
+from .scene import Below, Ellipse, Everywhere, Layer, Plane, Polygon, Segment, render
+from .textures import random_texture
+
+VALIDATION_SEED = 1_000_000_000
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SyntheticConfig:
+    height: int = 256
+    width: int = 512
+    max_disparity: int = 128            # the nearest surface of a scene is at most this far
+    photo_probability: float = 0.35     # share of surfaces painted with a photo
+    photometric: Photometric | None = dataclasses.field(default_factory=Photometric)
+
+    def __post_init__(self) -> None:
+        if self.height < 8 or self.width < 8:
+            raise ValueError(f"synthetic images must be at least 8 x 8, got {self.height} x {self.width}")
+        if self.max_disparity < 1:
+            raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
+
+
+# The validation split: fixed seeds, size and range (documented in docs/data.md; never change them).
+VALIDATION_CONFIG = SyntheticConfig(height=256, width=512, max_disparity=128)
+
+
+def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSample:
+    """The synthetic pair of ``seed``: same seed and config, same pixels."""
+    rng = np.random.default_rng(seed)
+    layers = random_scene(rng, height=config.height, width=config.width,
+                          max_disparity=config.max_disparity, photo_probability=config.photo_probability)
+    rendering = render(layers, height=config.height, width=config.width)
+    left = apply_camera(rendering.left, rng, config.photometric)
+    right = apply_camera(rendering.right, rng, config.photometric)
+    return StereoSample(name=f"synthetic-{seed}", left=left, right=right, disparity=rendering.disparity,
+                        nonoccluded=~rendering.occluded, max_disparity=config.max_disparity)
+
+
+class SyntheticStereo(Sequence[StereoSample]):
+    """``count`` pairs with seeds ``first_seed``, ``first_seed + 1``, ... (generated on access)."""
+
+    def __init__(self, *, count: int, first_seed: int = 0, config: SyntheticConfig = SyntheticConfig()):
+        if count < 1:
+            raise ValueError(f"count must be positive, got {count}")
+        self.count, self.first_seed, self.config = count, first_seed, config
+        self.name = f"synthetic seeds {first_seed}..{first_seed + count - 1}"
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index):  # type: ignore[override]
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(self.count))]
+        if not -self.count <= index < self.count:
+            raise IndexError(f"pair {index} out of range (0..{self.count - 1})")
+        return generate(self.first_seed + index % self.count, self.config)
+
+
+def validation_split(count: int = 20) -> SyntheticStereo:
+    """The first ``count`` pairs of the fixed synthetic validation split."""
+    split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=VALIDATION_CONFIG)
+    split.name = f"synthetic validation ({count} pairs)"
+    return split
+
+
+def random_scene(rng: np.random.Generator, *, height: int, width: int, max_disparity: int,
+                 photo_probability: float) -> list[Layer]:
+    """Layers of a random scene; disparities stay within [0, max_disparity]."""
+    builder = _SceneBuilder(rng, height, width, float(max_disparity), photo_probability)
+    far = rng.uniform(0, 0.2) * max_disparity
+    for _ in range(1 + (rng.random() < 0.4) + (rng.random() < 0.15)):
+        builder.background(far + rng.uniform(0, 0.1) * max_disparity)
+    if rng.random() < 0.6:
+        builder.ground(far)
+    scale = height * width / (256 * 512)
+    for _ in range(int(rng.integers(3, 6 + int(16 * np.sqrt(scale))))):
+        builder.solid()
+    for _ in range(int(rng.choice(4, p=(0.35, 0.35, 0.2, 0.1)))):
+        builder.thin()
+    if rng.random() < 0.15:
+        builder.fence()
+    return builder.layers
+
+
+class _SceneBuilder:
+    """Draws layer parameters; keeps each plane's disparity inside [0, max_disparity] where it is seen."""
+
+    def __init__(self, rng: np.random.Generator, height: int, width: int, max_disparity: float,
+                 photo_probability: float):
+        self.rng, self.height, self.width, self.dmax = rng, height, width, max_disparity
+        self.photo_probability = photo_probability
+        self.layers: list[Layer] = []
+
+    def background(self, disparity: float) -> None:
+        rng, reach = self.rng, self.width + self.dmax
+        a = rng.uniform(-0.15, 0.15) * self.dmax / reach
+        b = rng.uniform(-0.15, 0.15) * self.dmax / self.height
+        box = (0, 0, reach, self.height)
+        self._add(self._fit(a, b, disparity, box), Everywhere(), box)
+
+    def ground(self, far: float) -> None:
+        rng, height, reach = self.rng, self.height, self.width + self.dmax
+        horizon = rng.uniform(0.25, 0.7) * height
+        near = rng.uniform(0.3, 1.0) * self.dmax
+        b = (near - far) / (height - horizon)
+        a = rng.uniform(-0.05, 0.05) * (near - far) / reach
+        plane = self._fit(a, b, far + b * (height - 1 - horizon) / 2, (0, horizon, reach, height))
+        self._add(plane, Below(horizon), (0, horizon, reach, height))
+
+    def solid(self) -> None:
+        rng, size = self.rng, min(self.height, self.width)
+        disparity = rng.uniform(0.15, 1.0) * self.dmax
+        radius = float(np.exp(rng.uniform(np.log(0.05), np.log(0.5)))) * size
+        cx, cy = rng.uniform(-0.1 * self.width, self.width + 0.5 * disparity), rng.uniform(0, self.height)
+        kind = rng.choice(3, p=(0.35, 0.4, 0.25))
+        if kind == 0:
+            outline = Ellipse(cx, cy, radius, radius * rng.uniform(0.3, 1.0), rng.uniform(0, np.pi))
+        else:
+            count = int(rng.integers(5, 11)) if kind == 1 else 4
+            angles = np.sort(rng.uniform(0, 2 * np.pi, count)) if kind == 1 else \
+                rng.uniform(0, np.pi / 2) + np.array([0.0, 1.0, 2.0, 3.0]) * np.pi / 2
+            radii = radius * (rng.uniform(0.35, 1.0, count) if kind == 1 else np.ones(count))
+            if kind == 2:  # a rectangle: stretch a rotated square along one axis
+                angles = angles + rng.uniform(-0.3, 0.3) * np.array([1, -1, 1, -1])
+            outline = Polygon(np.stack([cx + radii * np.cos(angles), cy + radii * np.sin(angles)], axis=1))
+        box = (cx - radius, cy - radius, cx + radius, cy + radius)
+        a, b = rng.uniform(-0.25, 0.25, 2) * min(1.0, disparity / max(radius, 1.0))
+        self._add(self._fit(a, b, disparity, box), outline, box)
+
+    def thin(self) -> None:
+        rng = self.rng
+        disparity = rng.uniform(0.2, 1.0) * self.dmax
+        length = rng.uniform(0.2, 1.2) * self.height
+        angle = np.pi / 2 + (rng.uniform(-0.3, 0.3) if rng.random() < 0.7 else rng.uniform(-1.5, 1.5))
+        x0, y0 = rng.uniform(0, self.width + 0.5 * disparity), rng.uniform(-0.2, 1.0) * self.height
+        x1, y1 = x0 + length * np.cos(angle), y0 + length * np.sin(angle)
+        half_width = rng.uniform(0.6, 2.5)
+        box = (min(x0, x1) - 3, min(y0, y1) - 3, max(x0, x1) + 3, max(y0, y1) + 3)
+        b = rng.uniform(-0.1, 0.1) * disparity / max(length, 1.0)
+        self._add(self._fit(0.0, b, disparity, box), Segment(x0, y0, x1, y1, half_width), box)
+
+    def fence(self) -> None:
+        """Evenly spaced bars on one plane: a repetitive pattern that plain matching confuses."""
+        rng = self.rng
+        disparity = rng.uniform(0.3, 1.0) * self.dmax
+        count, spacing = int(rng.integers(4, 13)), rng.uniform(6, 25)
+        half_width = rng.uniform(0.8, 3.0)
+        x0, top = rng.uniform(0, self.width), rng.uniform(0, 0.5) * self.height
+        bottom = top + rng.uniform(0.3, 0.8) * self.height
+        box = (x0 - 4, top - 4, x0 + count * spacing + 4, bottom + 4)
+        plane = self._fit(0.0, 0.0, disparity, box)
+        texture = self._texture(box)
+        for i in range(count):
+            x = x0 + i * spacing
+            self.layers.append(Layer(plane, Segment(x, top, x, bottom, half_width), texture))
+
+    def _fit(self, a: float, b: float, disparity: float, box: tuple[float, float, float, float]) -> Plane:
+        """Plane with slopes a, b whose mean over ``box`` is ``disparity``, slopes shrunk to stay in range."""
+        x0, y0, x1, y1 = box
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        spread = abs(a) * (x1 - x0) / 2 + abs(b) * (y1 - y0) / 2
+        room = min(disparity, self.dmax - disparity)
+        if spread > room:
+            shrink = room / spread
+            a, b = a * shrink, b * shrink
+        return Plane(a, b, disparity - a * cx - b * cy)
+
+    def _texture(self, box: tuple[float, float, float, float]):
+        x0, y0, x1, y1 = (float(v) for v in box)
+        return random_texture(self.rng, height=int(np.ceil(y1 - y0)) + 1, width=int(np.ceil(x1 - x0)) + 1,
+                              origin=(x0, y0), photo_probability=self.photo_probability)
+
+    def _add(self, plane: Plane, outline, box: tuple[float, float, float, float]) -> None:
+        self.layers.append(Layer(plane, outline, self._texture(box)))
