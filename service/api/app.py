@@ -1,0 +1,79 @@
+"""The FastAPI application: wiring only (settings, lifespan, middleware, routes, static files).
+
+Start-up: the model folder is loaded and its hashes verified before the server accepts connections
+(a bad model fails the start, loudly); the JIT warm-up then runs in a thread while the server already
+answers /healthz, and /readyz turns 200 when it is done.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+
+from fastapi import FastAPI
+from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
+from starlette.staticfiles import StaticFiles
+
+import service
+from service.api import routes_disparity, routes_ops
+from service.api.errors import install_error_handlers
+from service.api.inference import InferenceService
+from service.api.limits import BodySizeLimit
+from service.api.metrics import MetricsMiddleware
+from service.api.request_id import RequestIdMiddleware
+from service.api.routes_ops import STATIC_DIR
+from service.api.settings import Settings
+from service.matcher import Matcher
+
+logger = logging.getLogger("service.api")
+
+DESCRIPTION = """Dense disparity, depth and point clouds from a rectified stereo pair (ADSM feature towers + SGM).
+
+Bad input never yields a 500: 400 for bad parameters or fields (FastAPI's 422 is folded into 400),
+413 for a body or image over the limits, 415 for a part that is not an image, 503 + Retry-After when
+the queue is full. Every response has an X-Request-ID header; stereo responses a Server-Timing header."""
+
+
+def create_app(settings: Settings | None = None, *, matcher: Matcher | None = None) -> FastAPI:
+    """Build the app. ``settings`` default to ``Settings.from_env()``; ``matcher`` replaces loading
+    ``settings.model_dir`` (for embedding and tests)."""
+    settings = Settings.from_env() if settings is None else settings
+    inference = InferenceService(settings, matcher=matcher)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await run_in_threadpool(inference.load)
+        warmup = asyncio.create_task(_warm(inference))
+        try:
+            yield
+        finally:
+            warmup.cancel()
+
+    app = FastAPI(
+        title="ADSM stereo service",
+        version=service.__version__,
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        middleware=[
+            Middleware(RequestIdMiddleware),  # outermost: every response, even a crash, gets its ID
+            Middleware(MetricsMiddleware, metrics=inference.metrics),
+            Middleware(BodySizeLimit, max_body_bytes=settings.max_body_bytes),
+        ],
+    )
+    app.state.inference = inference
+    install_error_handlers(app)
+    app.include_router(routes_disparity.router)
+    app.include_router(routes_ops.router)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app
+
+
+async def _warm(inference: InferenceService) -> None:
+    try:
+        await run_in_threadpool(inference.warm)
+    except Exception as error:  # /healthz turns 503 so that an orchestrator restarts the process
+        inference.failure = f"warm-up failed: {type(error).__name__}: {error}"
+        logger.exception("model warm-up failed")

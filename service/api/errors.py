@@ -1,0 +1,73 @@
+"""Error responses: always JSON ``{"detail": "..."}``, and one status rule for bad input.
+
+The rule (documented in the OpenAPI schema and docs/service.md):
+
+- 400: anything wrong with the request itself: a query parameter of the wrong type or out of range,
+  a missing multipart field, malformed multipart, images of different sizes, a disparity range the
+  image cannot hold. FastAPI's own 422 for request validation is folded into 400 so that a client has
+  one code to handle; ``errors`` then lists each problem with its location.
+- 413: body over the byte limit, or an image over the pixel limit (checked before decoding).
+- 415: a part that is not a decodable image.
+- 503 + Retry-After: the inference queue is full, or the model is still warming up.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.utils import get_openapi
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel
+
+
+class ErrorBody(BaseModel):
+    detail: str
+
+
+_DESCRIPTIONS = {
+    400: "Bad parameters, missing or malformed multipart fields, or images of different sizes.",
+    413: "Request body over ADSM_MAX_BODY_BYTES, or an image over ADSM_MAX_PIXELS.",
+    415: "A multipart part is not a decodable image (PNG, JPEG, PPM/PGM, TIFF, ...).",
+    503: "The inference queue is full or the model is warming up; retry after `Retry-After` seconds.",
+}
+
+
+def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` entries for the given error codes."""
+    return {code: {"model": ErrorBody, "description": _DESCRIPTIONS[code]} for code in codes}
+
+
+def _location(loc: tuple[Any, ...]) -> str:
+    return ".".join(str(part) for part in loc)
+
+
+async def validation_error_handler(request: Request, error: RequestValidationError) -> JSONResponse:
+    problems = [
+        {"loc": [str(part) for part in problem["loc"]], "msg": problem["msg"], "type": problem["type"]}
+        for problem in error.errors()
+    ]
+    detail = "; ".join(f"{_location(problem['loc'])}: {problem['msg']}" for problem in error.errors())
+    return JSONResponse({"detail": detail or "invalid request", "errors": problems}, status_code=400)
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(RequestValidationError, validation_error_handler)
+    app.openapi = lambda: _openapi_without_422(app)  # type: ignore[method-assign]
+
+
+def _openapi_without_422(app: FastAPI) -> dict[str, Any]:
+    """The generated schema, minus FastAPI's automatic 422 entries (the service answers 400 instead)."""
+    if app.openapi_schema is None:
+        schema = get_openapi(
+            title=app.title, version=app.version, description=app.description, routes=app.routes
+        )
+        for path in schema.get("paths", {}).values():
+            for operation in path.values():
+                operation.get("responses", {}).pop("422", None)
+        schemas = schema.get("components", {}).get("schemas", {})
+        for unused in ("HTTPValidationError", "ValidationError"):
+            schemas.pop(unused, None)
+        app.openapi_schema = schema
+    return app.openapi_schema

@@ -1,0 +1,153 @@
+"""The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
+
+Pipeline of a stereo request: admission (503 at once when the queue is full) -> multipart body ->
+decode both images in a thread (pixel limit before decoding) -> wait for the inference slot ->
+match in a thread -> the route encodes. Each step's seconds go into the Server-Timing header and the
+per-stage histogram.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from typing import Any
+
+import numpy as np
+from fastapi import HTTPException, Request
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+
+from service.api.metrics import ServiceMetrics
+from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
+from service.api.settings import Settings
+from service.io import ImageDecodeError, ImageTooLargeError, read_image
+from service.matcher import Matcher, MatchOptions, StereoResult
+
+logger = logging.getLogger("service.api")
+
+_WARMING_RETRY_AFTER_S = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class StereoMatch:
+    result: StereoResult
+    left: np.ndarray  # uint8 HxWx3, the colours of the point cloud
+    timings: dict[str, float]  # decode, queue, then the matcher's stages
+
+
+class InferenceService:
+    """Owns the matcher and the slot; ``ready`` turns True once the model is loaded and warmed."""
+
+    def __init__(self, settings: Settings, *, matcher: Matcher | None = None) -> None:
+        self.settings = settings
+        self.slot = InferenceSlot(queue_size=settings.queue_size)
+        self.metrics = ServiceMetrics(self.slot)
+        self.matcher = matcher
+        self.ready = False
+        self.failure: str | None = None
+
+    @property
+    def manifest(self) -> dict[str, Any]:
+        if self.matcher is None:
+            raise HTTPException(503, "the model is not loaded yet", headers=self._warming_headers())
+        return self.matcher.manifest
+
+    def load(self) -> None:
+        """Load the model folder (hashes verified by the towers); raises ModelError for a bad folder."""
+        if self.matcher is None:
+            self.matcher = Matcher.from_folder(self.settings.model_dir, threads=self.settings.threads)
+        self.metrics.model.labels(name=str(self.matcher.manifest.get("name", "unknown"))).set(1)
+
+    def warm(self) -> None:
+        """Compile every kernel and run the towers once, then declare readiness."""
+        started = time.perf_counter()
+        if self.settings.warmup:
+            self.matcher.warmup()
+        self.ready = True
+        self.metrics.ready.set(1)
+        logger.info("model warmed in %.1f s; ready", time.perf_counter() - started)
+
+    async def match(self, request: Request, options: MatchOptions) -> StereoMatch:
+        if not self.ready:
+            raise HTTPException(503, "the model is warming up", headers=self._warming_headers())
+        try:
+            admission = self.slot.admit()
+        except QueueFull as full:
+            self.metrics.rejections.inc()
+            raise HTTPException(503, str(full), headers={"Retry-After": str(full.retry_after)}) from None
+        with admission:
+            return await self._match_admitted(request, options)
+
+    async def _match_admitted(self, request: Request, options: MatchOptions) -> StereoMatch:
+        left_bytes, right_bytes = await _read_pair(request)
+        started = time.perf_counter()
+        left, right = await run_in_threadpool(self._decode_pair, left_bytes, right_bytes)
+        timings = {"decode": time.perf_counter() - started}
+        if left.shape != right.shape:
+            raise HTTPException(
+                400, f"left and right images differ in size: {left.shape[1]} x {left.shape[0]} vs "
+                f"{right.shape[1]} x {right.shape[0]} (width x height); the pair must be rectified",
+            )
+        if options.max_disparity is not None and options.max_disparity > self.settings.max_disparity:
+            raise HTTPException(
+                400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
+                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
+            )
+        queued = time.perf_counter()
+        try:
+            began, result = await self.slot.run(
+                _timed_match, self.matcher, left, right, options, disconnected=request.is_disconnected
+            )
+        except ClientDisconnected:
+            # Nobody will read the answer; 499 is nginx's "client closed request", for logs and metrics.
+            raise HTTPException(499, "client disconnected while queued") from None
+        except ValueError as error:  # the matcher's word on bad options for this pair
+            raise HTTPException(400, str(error)) from None
+        timings["queue"] = began - queued
+        timings.update(result.timings)
+        return StereoMatch(result=result, left=left, timings=timings)
+
+    def _decode_pair(self, left_bytes: bytes, right_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
+        images = []
+        for name, data in (("left", left_bytes), ("right", right_bytes)):
+            try:
+                images.append(read_image(data, max_pixels=self.settings.max_pixels, name=name))
+            except ImageTooLargeError as error:
+                raise HTTPException(413, str(error)) from None
+            except ImageDecodeError as error:
+                raise HTTPException(415, str(error)) from None
+        return images[0], images[1]
+
+    def _warming_headers(self) -> dict[str, str]:
+        return {"Retry-After": str(_WARMING_RETRY_AFTER_S)}
+
+
+def _timed_match(
+    matcher: Matcher, left: np.ndarray, right: np.ndarray, options: MatchOptions
+) -> tuple[float, StereoResult]:
+    began = time.perf_counter()  # when the slot was won: the queue wait ends here
+    return began, matcher(left, right, options)
+
+
+async def _read_pair(request: Request) -> tuple[bytes, bytes]:
+    """The bytes of the ``left`` and ``right`` file parts of a multipart/form-data body."""
+    content_type = request.headers.get("content-type", "")
+    if not content_type.startswith("multipart/form-data"):
+        raise HTTPException(
+            400, f"expected a multipart/form-data body with files 'left' and 'right', got "
+            f"{content_type or 'no Content-Type'}",
+        )
+    form = await request.form(max_files=2, max_fields=16)
+    try:
+        parts = []
+        for name in ("left", "right"):
+            part = form.get(name)
+            if part is None:
+                raise HTTPException(400, f"multipart field '{name}' is missing (an image file)")
+            if not isinstance(part, UploadFile):
+                raise HTTPException(400, f"multipart field '{name}' must be a file, not a text field")
+            parts.append(await part.read())
+        return parts[0], parts[1]
+    finally:
+        await form.close()

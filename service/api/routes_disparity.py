@@ -1,0 +1,178 @@
+"""POST /disparity, /depth and /pointcloud: a rectified pair in, a map or a point cloud out."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Depends, Query, Request
+from fastapi.responses import Response
+from starlette.concurrency import run_in_threadpool
+
+from service.api import geometry
+from service.api.encoding import FILE_EXTENSIONS, multipart_mixed, negotiate_format, server_timing, validity_png
+from service.api.errors import error_responses
+from service.api.inference import InferenceService, StereoMatch
+from service.io import encode_disparity, media_type
+from service.matcher import MatchOptions
+
+router = APIRouter(tags=["stereo"])
+
+# The request body is parsed by the service itself (admission comes before reading it), so its
+# schema is declared here for the OpenAPI page.
+_PAIR_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["left", "right"],
+                    "properties": {
+                        "left": {"type": "string", "format": "binary", "description": "left image"},
+                        "right": {"type": "string", "format": "binary", "description": "right image"},
+                    },
+                }
+            }
+        },
+    }
+}
+_ERRORS = error_responses(400, 413, 415, 503)
+
+Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
+
+
+def stereo_options(
+    max_disparity: Annotated[
+        int | None, Query(ge=1, description="Disparities searched: 0..max_disparity-1 (default: the model's).")
+    ] = None,
+    lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
+    fill: Annotated[bool, Query(description="Fill invalid pixels along rays (needs lr_check).")] = True,
+    subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
+    p1: Annotated[float | None, Query(ge=0, description="SGM small-jump penalty (default: the model's).")] = None,
+    p2: Annotated[float | None, Query(ge=0, description="SGM large-jump penalty (default: the model's).")] = None,
+) -> MatchOptions:
+    return MatchOptions(max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2)
+
+
+Options = Annotated[MatchOptions, Depends(stereo_options)]
+
+
+def _service(request: Request) -> InferenceService:
+    return request.app.state.inference
+
+
+def _binary(media: str, description: str) -> dict[str, Any]:
+    return {"content": {media: {"schema": {"type": "string", "format": "binary"}}}, "description": description}
+
+
+@router.post(
+    "/disparity",
+    summary="Disparity map of a rectified pair",
+    openapi_extra=_PAIR_BODY,
+    response_class=Response,
+    responses={
+        200: {
+            "description": "png16 (uint16 = d x 256, 0 invalid), npy (float32, NaN invalid), pfm (inf "
+            "invalid) or color (RGB PNG). With validity=true: multipart/mixed with the parts "
+            "'disparity' and 'validity' (8-bit PNG of validity codes).",
+            "content": {
+                "image/png": {}, "application/x-npy": {}, "image/x-portable-floatmap": {}, "multipart/mixed": {},
+            },
+        },
+        **_ERRORS,
+    },
+)
+async def disparity(
+    request: Request,
+    options: Options,
+    format: Annotated[
+        Literal["png16", "npy", "pfm", "color"] | None,
+        Query(description="Output format; default from the Accept header, else png16."),
+    ] = None,
+    validity: Annotated[bool, Query(description="Also return the validity map (multipart/mixed).")] = False,
+) -> Response:
+    service = _service(request)
+    chosen = negotiate_format(format, request.headers.get("accept"), offered=("png16", "npy", "pfm", "color"))
+    match = await service.match(request, options)
+
+    def encode() -> Encoded:
+        body = encode_disparity(match.result.disparity, chosen)
+        headers = {"X-Disparity-Format": chosen}
+        if not validity:
+            return body, media_type(chosen), headers
+        return *multipart_mixed([
+            ("disparity", f"disparity.{FILE_EXTENSIONS[chosen]}", media_type(chosen), body),
+            ("validity", "validity.png", "image/png", validity_png(match.result.validity)),
+        ]), headers
+
+    return await _respond(service, match, encode)
+
+
+@router.post(
+    "/depth",
+    summary="Depth map (z = baseline x focal / disparity)",
+    openapi_extra=_PAIR_BODY,
+    response_class=Response,
+    responses={
+        200: _binary("application/x-npy", "npy: float32 metres, NaN invalid; png16 (image/png): uint16 "
+                     "millimetres, 0 invalid or beyond 65.535 m."),
+        **_ERRORS,
+    },
+)
+async def depth(
+    request: Request,
+    options: Options,
+    focal_px: Annotated[float, Query(gt=0, description="Focal length in pixels.")],
+    baseline_m: Annotated[float, Query(gt=0, description="Stereo baseline in metres.")],
+    format: Annotated[
+        Literal["npy", "png16"] | None, Query(description="Output format; default from Accept, else npy.")
+    ] = None,
+) -> Response:
+    service = _service(request)
+    chosen = negotiate_format(format, request.headers.get("accept"), offered=("npy", "png16"))
+    match = await service.match(request, options)
+
+    def encode() -> Encoded:
+        depth = geometry.depth_from_disparity(match.result.disparity, focal_px=focal_px, baseline_m=baseline_m)
+        if chosen == "png16":
+            return geometry.depth_png16(depth), "image/png", {"X-Depth-Format": chosen}
+        return geometry.depth_npy(depth), "application/x-npy", {"X-Depth-Format": chosen}
+
+    return await _respond(service, match, encode)
+
+
+@router.post(
+    "/pointcloud",
+    summary="Coloured point cloud (binary little-endian PLY, metres, left camera frame)",
+    openapi_extra=_PAIR_BODY,
+    response_class=Response,
+    responses={200: _binary("application/x-ply", "PLY; pixels without depth are dropped."), **_ERRORS},
+)
+async def pointcloud(
+    request: Request,
+    options: Options,
+    focal_px: Annotated[float, Query(gt=0, description="Focal length in pixels.")],
+    baseline_m: Annotated[float, Query(gt=0, description="Stereo baseline in metres.")],
+    cx: Annotated[float | None, Query(description="Principal point x in pixels (default: centre).")] = None,
+    cy: Annotated[float | None, Query(description="Principal point y in pixels (default: centre).")] = None,
+) -> Response:
+    service = _service(request)
+    match = await service.match(request, options)
+
+    def encode() -> Encoded:
+        depth = geometry.depth_from_disparity(match.result.disparity, focal_px=focal_px, baseline_m=baseline_m)
+        body, count = geometry.point_cloud_ply(depth, match.left, focal_px=focal_px, cx=cx, cy=cy)
+        return body, "application/x-ply", {"X-Point-Count": str(count)}
+
+    return await _respond(service, match, encode)
+
+
+async def _respond(service: InferenceService, match: StereoMatch, encode: Callable[[], Encoded]) -> Response:
+    """Encode off the event loop, then attach the stage timings (also recorded as metrics)."""
+    started = time.perf_counter()
+    body, media, headers = await run_in_threadpool(encode)
+    timings = {**match.timings, "encode": time.perf_counter() - started}
+    service.metrics.observe_stages(timings)
+    return Response(body, media_type=media, headers={**headers, "Server-Timing": server_timing(timings)})

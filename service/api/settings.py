@@ -1,0 +1,68 @@
+"""Service settings, read from ``ADSM_*`` environment variables (documented in docs/service.md)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Settings:
+    """Everything an operator can tune; ``Settings.from_env()`` is what ``adsm serve`` and the image use."""
+
+    model_dir: Path | None = None  # None -> the default model shipped inside the package
+    threads: int | None = None  # Numba / ONNX Runtime threads per process; None -> all cores
+    queue_size: int = 4  # requests that may wait while one inference runs; more -> 503 at once
+    max_body_bytes: int = 32 * 1024 * 1024  # whole request body, multipart framing included
+    max_pixels: int = 2_100_000  # per image, checked on the header before decoding (1920x1080 fits)
+    max_disparity: int = 256  # upper bound for the max_disparity query (bounds cost-volume memory)
+    warmup: bool = True  # compile and run every kernel before /readyz turns ready
+
+    def __post_init__(self) -> None:
+        for name in ("queue_size",):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("max_body_bytes", "max_pixels", "max_disparity"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {self.threads}")
+
+    @classmethod
+    def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
+        """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
+        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY`` and ``ADSM_WARMUP``; unset or empty keeps the default."""
+        env = os.environ if environ is None else environ
+        values: dict[str, object] = {}
+        if model_dir := env.get("ADSM_MODEL_DIR"):
+            values["model_dir"] = Path(model_dir)
+        for field, parse in (
+            ("threads", _parse_int),
+            ("queue_size", _parse_int),
+            ("max_body_bytes", _parse_int),
+            ("max_pixels", _parse_int),
+            ("max_disparity", _parse_int),
+            ("warmup", _parse_bool),
+        ):
+            name = f"ADSM_{field.upper()}"
+            if raw := env.get(name, "").strip():
+                values[field] = parse(name, raw)
+        return cls(**values)
+
+
+def _parse_int(name: str, raw: str) -> int:
+    try:
+        return int(raw.replace("_", ""))
+    except ValueError:
+        raise ValueError(f"{name} must be an integer, got {raw!r}") from None
+
+
+def _parse_bool(name: str, raw: str) -> bool:
+    lowered = raw.lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(f"{name} must be true or false, got {raw!r}")
