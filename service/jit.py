@@ -75,5 +75,5 @@ def warmup() -> None:
     winner_takes_all(volume)
     left, right = left_right_winners(volume)
     disparity = refine_subpixel(volume, left)
-    validity = inner_check(disparity, right)
+    validity = inner_check(disparity, right, volume.shape[2])
     fill_invalid(disparity, validity)

@@ -1,0 +1,167 @@
+"""Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
+
+    towers -> cost_volume -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check) -> fill
+
+Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
+``disparity.default_max``); every post-processing step can be switched off per call with
+:class:`MatchOptions`. Peak memory is about two cost volumes (``H * W * D * 8`` bytes): the raw and the
+aggregated volume are the only volume-sized arrays, and the features are dropped as soon as the cost
+volume exists.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service import jit
+from service.cost import cost_volume
+from service.disparity import left_right_winners, winner_takes_all
+from service.features import FeatureTowers, default_model_dir
+from service.filling import fill_invalid
+from service.optimization import aggregate
+from service.refinement import refine_subpixel
+from service.validation import Validity, inner_check
+
+__all__ = ["MatchOptions", "Matcher", "StereoResult", "Validity"]
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class MatchOptions:
+    """Per-call settings; ``None`` takes the model manifest's value. Raises ValueError when out of range."""
+
+    max_disparity: int | None = None  # None -> manifest disparity.default_max; clipped to the image width
+    p1: float | None = None  # None -> manifest sgm.p1 (cost units, see cost.scale)
+    p2: float | None = None  # None -> manifest sgm.p2
+    sgm: bool = True
+    subpixel: bool = True
+    lr_check: bool = True
+    fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
+
+    def __post_init__(self) -> None:
+        if self.max_disparity is not None:
+            if isinstance(self.max_disparity, bool) or not isinstance(self.max_disparity, int | np.integer):
+                raise ValueError(f"max_disparity must be an integer, got {self.max_disparity!r}")
+            if self.max_disparity < 1:
+                raise ValueError(f"max_disparity must be >= 1, got {self.max_disparity}")
+        for name in ("p1", "p2"):
+            value = getattr(self, name)
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int | float | np.number)
+                or not math.isfinite(value) or value < 0
+            ):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        for name in ("sgm", "subpixel", "lr_check", "fill"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class StereoResult:
+    disparity: np.ndarray  # float32 HxW, NaN where invalid and not filled
+    validity: np.ndarray  # uint8 HxW, Validity codes
+    timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
+
+
+def _check_images(left: Any, right: Any) -> None:
+    for side, image in (("left", left), ("right", right)):
+        expected = f"{side} image must be a uint8 array of shape (H, W, 3)"
+        if not isinstance(image, np.ndarray):
+            raise ValueError(f"{expected}, got {type(image).__name__}")
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+            raise ValueError(f"{expected}, got {image.dtype} {image.shape}")
+        if image.shape[0] < 1 or image.shape[1] < 1:
+            raise ValueError(f"{side} image is empty: shape {image.shape}")
+    if left.shape != right.shape:
+        raise ValueError(f"left and right images differ in size: {left.shape[:2]} vs {right.shape[:2]}")
+
+
+class Matcher:
+    """Stereo matcher of one model folder. Not thread-safe: run one call at a time per instance."""
+
+    def __init__(self, towers: FeatureTowers, *, threads: int | None = None) -> None:
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.towers = towers
+        self.threads = threads
+        self.manifest: dict[str, Any] = towers.manifest
+
+    @classmethod
+    def from_folder(
+        cls,
+        folder: str | Path | None = None,
+        *,
+        threads: int | None = None,
+        providers: Sequence[str] | None = None,
+    ) -> Matcher:
+        """Load (and sha256-verify) a model folder; ``None`` is the default shipped model."""
+        folder = default_model_dir() if folder is None else Path(folder)
+        return cls(FeatureTowers(folder, threads=threads, providers=providers), threads=threads)
+
+    def warmup(self) -> None:
+        """Compile or load every Numba kernel and run the towers once, so the first request is fast."""
+        jit.set_threads(self.threads)
+        jit.warmup()
+        self.towers.warmup()
+
+    def __call__(
+        self, left: np.ndarray, right: np.ndarray, options: MatchOptions | None = None
+    ) -> StereoResult:
+        """Disparity of the left view of a rectified pair (uint8 HxWx3 each, same shape)."""
+        options = MatchOptions() if options is None else options
+        if not isinstance(options, MatchOptions):
+            raise ValueError(f"options must be MatchOptions, got {type(options).__name__}")
+        _check_images(left, right)
+        width = left.shape[1]
+        disparities = min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+        p1 = float(self.manifest["sgm"]["p1"] if options.p1 is None else options.p1)
+        p2 = float(self.manifest["sgm"]["p2"] if options.p2 is None else options.p2)
+        jit.set_threads(self.threads)
+
+        timings: dict[str, float] = {}
+        start = clock = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal clock
+            now = time.perf_counter()
+            timings[stage] = now - clock
+            clock = now
+
+        left_features, right_features = self.towers(left, right)
+        lap("towers")
+        scale = float(self.manifest["cost"]["scale"])
+        volume = cost_volume(left_features, right_features, disparities, scale=scale)
+        del left_features, right_features
+        lap("cost_volume")
+        if options.sgm:
+            volume = aggregate(volume, p1=p1, p2=p2)  # the raw volume is freed on rebinding
+        lap("sgm")
+        if options.lr_check:
+            winners, right_winners = left_right_winners(volume)
+        else:
+            winners = winner_takes_all(volume)
+        lap("disparity")
+        if options.subpixel:
+            disparity = refine_subpixel(volume, winners)
+            lap("subpixel")
+        else:
+            disparity = winners.astype(np.float32)
+        del volume
+        if options.lr_check:
+            validity = inner_check(disparity, right_winners, disparities)
+            lap("lr_check")
+            if options.fill:
+                disparity, validity = fill_invalid(disparity, validity)
+                lap("fill")
+            else:
+                disparity[validity != Validity.VALID] = np.nan
+        else:
+            validity = np.zeros(disparity.shape, np.uint8)
+        timings["total"] = time.perf_counter() - start
+        return StereoResult(disparity, validity, timings)
