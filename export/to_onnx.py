@@ -3,7 +3,7 @@
     python -m export.to_onnx --checkpoint CKPT --out DIR [--int8 --calibration SPEC] [--opset N]
 
 Each tower becomes one ONNX graph built from the folded PyTorch weights: ``image`` [1, 3, H, W] ->
-edge padding by half the receptive field (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
+edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
 -> ``features`` [1, C, H, W]. BN is folded into each conv's weights and bias. Stride-1 transposed convs
 are written as the equivalent convs (kernel flipped, in/out swapped, zero padding k - 1): ONNX Runtime
 ran the 3->64 Deconv5 at 375x1242 in 0.11 s as a Conv against 0.34 s as a ConvTranspose.
@@ -77,7 +77,7 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
     if opset not in SUPPORTED_OPSETS:
         first, last = SUPPORTED_OPSETS.start, SUPPORTED_OPSETS.stop - 1
         raise ValueError(f"opset {opset} not supported (choose {first}..{last})")
-    left, right, top, bottom = same_padding(tower.receptive_field)
+    left, right, top, bottom = same_padding(tower.patch)
     pads = np.array([0, 0, top, left, 0, 0, bottom, right], np.int64)
     initializers = [numpy_helper.from_array(pads, "pads"),
                     numpy_helper.from_array(np.array([NORM_EPS], np.float32), "norm_eps")]

@@ -35,8 +35,14 @@ class TowerConfig:
 
     @property
     def receptive_field(self) -> int:
-        """Side of the input square that determines one output feature vector (the patch size)."""
-        return self.patch
+        """Side of the input square that one feature depends on when the tower runs on a whole image.
+
+        Equal to the patch for conv-only towers. A transposed conv (kernel k) pads its input with k - 1
+        zeros on each side, so on an isolated patch the outer deconv outputs see zeros, while on an image
+        they see the next k - 1 real pixels: the dense field is patch + 2 * sum(k - 1) (45 for
+        37-1deconv5-4conv). The output geometry is still set by the patch (P x P -> 1 x 1).
+        """
+        return self.patch + 2 * sum(k - 1 for k in self.deconv_kernels)
 
     def output_size(self, size: int) -> int:
         """Output side for an input side in training ('valid') mode: eq. (11) then eq. (10), s=1, p=0."""

@@ -41,6 +41,10 @@ class TowerPair(nn.Module):
             self.register_buffer("log_temperature", log_t)
 
     @property
+    def patch(self) -> int:
+        return self.config.patch
+
+    @property
     def receptive_field(self) -> int:
         return self.config.receptive_field
 
@@ -62,7 +66,7 @@ class TowerPair(nn.Module):
         features_left = self.left(left)
         features_right = self.right(right)
         if features_left.shape[-2:] != (1, 1) or features_right.shape[-2] != 1:
-            raise ValueError(f"expected a {self.receptive_field}-pixel-high left patch and right strip, got "
+            raise ValueError(f"expected a {self.patch}-pixel-high left patch and right strip, got "
                              f"{tuple(left.shape)} and {tuple(right.shape)}")
         scores = (features_left * features_right).sum(dim=1)  # [N, 1, K + 1]
         return self.log_temperature.exp() * scores[:, 0, :]

@@ -1,8 +1,10 @@
 """One ADSM feature tower: stride-1 transposed convs, valid convs, L2-normalised features.
 
 Training mode is 'valid': a PxP patch maps to 1x1 and a Px(P+200) strip to 1x201, as in the paper.
-Dense inference pads the image by half the receptive field first (:func:`dense_features`), which is exactly
-the valid tower applied to every patch of the padded image, so train and deploy see the same function.
+Dense inference pads the image by (P - 1) / 2 first (:func:`dense_features`), so H x W is kept; the ONNX
+export is this function. For conv-only towers each dense feature equals the tower on the PxP patch around
+the pixel; with deconvs it equals the tower on the larger ``receptive_field`` patch (centre output), since
+a deconv then sees real neighbours where an isolated patch gives it zeros (docs/networks.md).
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ def l2_normalize(features: torch.Tensor) -> torch.Tensor:
 
 
 class FeatureTower(nn.Module):
-    """Maps [N, 3, H, W] to L2-normalised features [N, C, H - rf + 1, W - rf + 1] (rf = receptive field).
+    """Maps [N, 3, H, W] to L2-normalised features [N, C, H - P + 1, W - P + 1] (P = ``config.patch``).
 
     BN + ReLU follow every layer but the last; Table 2 puts no ReLU after the deconvs of the 1- and
     2-Deconv rows (``config.deconv_relu``). No layer has a bias: BN supplies the shift, and the paper's
@@ -51,15 +53,19 @@ class FeatureTower(nn.Module):
         self.layers = nn.Sequential(*layers)
 
     @property
+    def patch(self) -> int:
+        return self.config.patch
+
+    @property
     def receptive_field(self) -> int:
         return self.config.receptive_field
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         if image.ndim != 4 or image.shape[1] != 3:
             raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
-        rf = self.receptive_field
-        if image.shape[2] < rf or image.shape[3] < rf:
-            raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the receptive field {rf}")
+        if image.shape[2] < self.patch or image.shape[3] < self.patch:
+            side = self.patch
+            raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the {side}x{side} patch")
         return l2_normalize(self.layers(image))
 
     def conv_weight_count(self) -> int:
@@ -67,19 +73,19 @@ class FeatureTower(nn.Module):
         return sum(m.weight.numel() for m in self.modules() if isinstance(m, nn.Conv2d | nn.ConvTranspose2d))
 
 
-def same_padding(receptive_field: int) -> tuple[int, int, int, int]:
-    """(left, right, top, bottom) padding that makes a valid tower keep H x W; odd fields centre exactly."""
-    before = (receptive_field - 1) // 2
-    after = receptive_field - 1 - before
+def same_padding(patch: int) -> tuple[int, int, int, int]:
+    """(left, right, top, bottom) padding that makes a valid tower keep H x W; odd patches centre exactly."""
+    before = (patch - 1) // 2
+    after = patch - 1 - before
     return (before, after, before, after)
 
 
 def dense_features(tower: FeatureTower, image: torch.Tensor) -> torch.Tensor:
-    """Features for every pixel, [N, C, H, W]: replicate-pad by half the receptive field, then the tower.
+    """Features for every pixel, [N, C, H, W]: replicate-pad by (P - 1) / 2, then the tower.
 
     Replicate ('edge') padding extends border texture instead of inventing black bars that would match
     each other across the two views; the exported ONNX graph pads the same way.
     """
     if image.ndim != 4:
         raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
-    return tower(F.pad(image, same_padding(tower.receptive_field), mode="replicate"))
+    return tower(F.pad(image, same_padding(tower.patch), mode="replicate"))
