@@ -1,0 +1,85 @@
+"""`adsm eval --model DIR --data SPEC`: a model's accuracy and speed on a dataset, as the paper tabulates.
+
+Prints bad-1..5 (the paper's N-pixel errors, %), EPE, D1 and density over every ground-truth pixel and
+over the non-occluded ones where the dataset has a mask, plus seconds per pair; one progress line per
+pair goes to stderr. ``--json OUT`` writes the full report (``-``: to stdout instead of the table).
+SPEC: synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from service.datasets import open_dataset
+from service.evaluation import BAD_THRESHOLDS
+from service.features import ModelError
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "eval", help="measure a model's bad-N, EPE, D1 and speed on a dataset",
+        description="Measure a model on a dataset with ground truth: bad-1..5 %%, EPE, D1, density and "
+                    "seconds per pair, over every ground-truth pixel (dense output).",
+    )
+    add = parser.add_argument
+    add("--model", type=Path, metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the shipped)")
+    add("--data", required=True, metavar="SPEC",
+        help="synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH")
+    add("--max-disparity", type=int, metavar="D",
+        help="disparity range D (default: the dataset's recommendation, else the model's)")
+    add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
+    add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
+    add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
+    add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    dataset = open_dataset(args.data)
+    # Imported here so that `adsm --help` does not pay for Numba and ONNX Runtime.
+    from service.evaluation.evaluate import evaluate
+    from service.matcher import Matcher, MatchOptions
+
+    try:
+        matcher = Matcher.from_folder(args.model, threads=args.threads)
+    except ModelError as error:
+        print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
+        return 1
+    options = MatchOptions(max_disparity=args.max_disparity, p1=args.p1, p2=args.p2)
+    matcher.warmup()
+
+    def progress(index: int, pair: dict[str, Any]) -> None:
+        print(f"[{index + 1}/{len(dataset)}] {pair['name']}: bad-2 {pair['all']['bad2']:.2f} %, "
+              f"{pair['seconds']:.3f} s", file=sys.stderr)
+
+    report = evaluate(matcher, dataset, max_disparity=args.max_disparity, options=options, on_pair=progress)
+    report["model_folder"] = str(args.model) if args.model is not None else None
+    if args.json == "-":
+        json.dump(report, sys.stdout, indent=2)
+        print()
+        return 0
+    print(format_table(report))
+    if args.json is not None:
+        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
+def format_table(report: dict[str, Any]) -> str:
+    """The paper's table shape: one row per pixel subset, error rates in %."""
+    columns = [f"bad{t}" for t in BAD_THRESHOLDS] + ["epe", "d1", "density"]
+    headers = [f"bad-{t} %" for t in BAD_THRESHOLDS] + ["EPE px", "D1 %", "density %"]
+    lines = [f"model {report['model']} on {report['dataset']}: {report['pairs']} pair(s)",
+             f"{'pixels':<12}" + "".join(f"{h:>11}" for h in headers)]
+    for subset in ("all", "nonoccluded"):
+        figures = report[subset]
+        if figures is None:
+            continue
+        cells = "".join(f"{'-' if figures[c] is None else format(figures[c], '.2f'):>11}" for c in columns)
+        lines.append(f"{subset:<12}{cells}")
+    lines.append(f"seconds per pair: {report['seconds_per_pair']:.3f}  (stages: "
+                 + ", ".join(f"{k} {v:.3f}" for k, v in report["stage_seconds"].items()) + ")")
+    return "\n".join(lines)
