@@ -1,0 +1,152 @@
+"""Synthetic stereo generator: exact geometry and occlusions, determinism, ranges, textures, camera."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.datasets.photometric import Photometric, apply_camera
+from service.datasets.scene import Everywhere, Layer, Plane, Polygon, Segment, render
+from service.datasets.synthetic import (
+    VALIDATION_CONFIG,
+    VALIDATION_SEED,
+    SyntheticConfig,
+    generate,
+    validation_split,
+)
+from service.datasets.textures import PHOTOS, ImageTexture, load_photos
+
+
+class SurfaceCoordinates:
+    """Paints each surface point with its own left-image coordinates, so a view shows what it hit."""
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.stack([x, y, np.zeros_like(x)], axis=1).astype(np.float32)
+
+
+def square(x0: float, y0: float, x1: float, y1: float) -> Polygon:
+    return Polygon(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=np.float64))
+
+
+def test_fronto_parallel_square_occludes_exactly_its_disparity_step():
+    paint = SurfaceCoordinates()
+    layers = [Layer(Plane(0, 0, 5), Everywhere(), paint),
+              Layer(Plane(0, 0, 20), square(40, 10, 80, 30), paint)]
+    scene = render(layers, height=40, width=120)
+    x = np.arange(120)
+    expected_rows_with_square = (x < 5) | ((x >= 25) & (x < 40))   # band 20 - 5 wide left of the square
+    for row in range(40):
+        expected = expected_rows_with_square if 10 <= row < 30 else x < 5
+        np.testing.assert_array_equal(scene.occluded[row], expected, err_msg=f"row {row}")
+    assert np.all(scene.disparity[10:30, 40:80] == 20) and np.all(scene.disparity[:10] == 5)
+    # The right view sees the square shifted by its disparity: x_right in [20, 60).
+    assert np.all(scene.disparity_right[10:30, 20:60] == 20)
+    assert np.all(scene.disparity_right[10:30, 60:] == 5) and np.all(scene.disparity_right[10:30, :20] == 5)
+
+
+def test_right_view_hits_the_surface_its_disparity_says():
+    paint = SurfaceCoordinates()
+    layers = [Layer(Plane(0.08, -0.05, 12.3), Everywhere(), paint),
+              Layer(Plane(-0.2, 0.1, 40.7), square(30, 5, 70, 35), paint),
+              Layer(Plane(0.0, 0.02, 30.0), Segment(90, 0, 95, 40, 1.5), paint)]
+    scene = render(layers, height=40, width=128)
+    columns = np.arange(128)[None, :]
+    # Right pixel x_r shows the surface point at left abscissa x_r + d_right, on the same row.
+    np.testing.assert_allclose(scene.right[..., 0], columns + scene.disparity_right, atol=1e-3)
+    np.testing.assert_allclose(scene.right[..., 1], np.arange(40)[:, None] + 0 * columns, atol=1e-4)
+    np.testing.assert_allclose(scene.left[..., 0], columns + 0.0 * scene.disparity, atol=1e-4)
+    # Slanted plane: the disparity seen on the right equals the plane at the left point it came from.
+    x_left = scene.right[..., 0]
+    y = np.arange(40, dtype=np.float32)[:, None]
+    on_background = np.isclose(scene.disparity_right, layers[0].plane.at(x_left, y), atol=1e-3)
+    assert on_background.mean() > 0.5
+
+
+def test_visible_left_pixels_find_their_surface_in_the_right_view():
+    paint = SurfaceCoordinates()
+    layers = [Layer(Plane(0.05, 0, 8.25), Everywhere(), paint),
+              Layer(Plane(0, 0, 33.5), square(50, 0, 90, 20), paint)]
+    scene = render(layers, height=20, width=128)
+    for row in (3, 17):
+        visible = np.flatnonzero(~scene.occluded[row])
+        x_right = visible - scene.disparity[row, visible]
+        # Interpolating the right view at the match gives back the pixel, away from the right view's edges.
+        edges = np.flatnonzero(np.abs(np.diff(scene.disparity_right[row])) > 0.5) + 0.5
+        smooth = np.abs(np.subtract.outer(x_right, edges)).min(axis=1) > 1
+        seen = np.interp(x_right[smooth], np.arange(128), scene.right[row, :, 0])
+        assert smooth.sum() > 60
+        np.testing.assert_allclose(seen, visible[smooth], atol=1e-3)
+
+
+def test_renderer_refuses_an_uncovered_scene_and_edge_on_planes():
+    with pytest.raises(ValueError, match="empty"):
+        render([Layer(Plane(0, 0, 3), square(0, 0, 4, 4), SurfaceCoordinates())], height=8, width=8)
+    with pytest.raises(ValueError, match="below 1"):
+        Plane(1.0, 0, 0)
+
+
+def test_same_seed_same_pair_and_seeds_differ():
+    config = SyntheticConfig(height=64, width=128, max_disparity=32)
+    first, again, other = generate(7, config), generate(7, config), generate(8, config)
+    for field in ("left", "right", "disparity", "nonoccluded"):
+        np.testing.assert_array_equal(getattr(first, field), getattr(again, field))
+    assert not np.array_equal(first.left, other.left)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_generated_pairs_are_complete_and_in_range(seed):
+    config = SyntheticConfig(height=96, width=192, max_disparity=48)
+    pair = generate(seed, config)
+    assert pair.left.shape == pair.right.shape == (96, 192, 3) and pair.left.dtype == np.uint8
+    assert np.isfinite(pair.disparity).all()
+    assert pair.disparity.min() >= 0 and pair.disparity.max() <= 48 + 1e-3
+    assert pair.nonoccluded.dtype == np.bool_ and 0.5 < pair.nonoccluded.mean() < 1
+    assert pair.max_disparity == 48
+    # Both views carry texture: no flat image.
+    assert pair.left.std() > 5 and pair.right.std() > 5
+
+
+def test_kitti_sized_pairs_reach_large_disparities():
+    config = SyntheticConfig(height=375, width=1242, max_disparity=192)
+    largest = max(float(generate(seed, config).disparity.max()) for seed in (11, 12))
+    assert 150 < largest <= 192 + 1e-3
+
+
+def test_validation_split_is_fixed_seeds_of_a_fixed_config():
+    split = validation_split(3)
+    assert len(split) == 3 and [split[i].name for i in range(3)] == [
+        f"synthetic-{VALIDATION_SEED + i}" for i in range(3)]
+    np.testing.assert_array_equal(split[1].left, generate(VALIDATION_SEED + 1, VALIDATION_CONFIG).left)
+    assert split[0].left.shape == (VALIDATION_CONFIG.height, VALIDATION_CONFIG.width, 3)
+    with pytest.raises(IndexError):
+        split[3]
+
+
+def test_photos_are_bundled_natural_images_and_never_a_stereo_pair():
+    photos = load_photos()
+    assert len(photos) == len(PHOTOS) >= 10
+    assert not any("motorcycle" in name for name in PHOTOS)
+    assert all(p.dtype == np.float32 and p.ndim == 3 and p.shape[2] == 3 and p.max() <= 1 for p in photos)
+
+
+def test_image_texture_samples_pixels_and_mirrors_beyond_the_border():
+    image = np.random.default_rng(0).random((4, 5, 3)).astype(np.float32)
+    texture = ImageTexture(image)
+    np.testing.assert_allclose(texture.sample(np.array([2.0]), np.array([1.0])), image[1:2, 2], atol=1e-6)
+    np.testing.assert_allclose(texture.sample(np.array([-1.0, 5.0]), np.array([0.0, 0.0])),
+                               image[0, [1, 3]], atol=1e-6)
+    np.testing.assert_allclose(texture.sample(np.array([0.5]), np.array([0.0])),
+                               (image[0:1, 0] + image[0:1, 1]) / 2, atol=1e-6)
+
+
+def test_camera_effects_differ_per_view_and_are_reproducible():
+    image = np.random.default_rng(1).random((32, 48, 3)).astype(np.float32)
+    effects = Photometric(blur_probability=1.0, jpeg_probability=1.0)
+    first = apply_camera(image, np.random.default_rng(5), effects)
+    again = apply_camera(image, np.random.default_rng(5), effects)
+    other = apply_camera(image, np.random.default_rng(6), effects)
+    np.testing.assert_array_equal(first, again)
+    assert first.dtype == np.uint8 and first.shape == (32, 48, 3)
+    assert np.abs(first.astype(int) - other.astype(int)).mean() > 1
+    exact = apply_camera(image, np.random.default_rng(5), None)
+    np.testing.assert_array_equal(exact, (image * 255 + 0.5).astype(np.uint8))
