@@ -30,7 +30,7 @@ from service.matcher import Matcher
 
 logger = logging.getLogger("service.api")
 
-DESCRIPTION = """Dense disparity, depth and point clouds from a rectified stereo pair (ADSM feature towers + SGM).
+DESCRIPTION = """Dense disparity, depth and point clouds from a rectified stereo pair (ADSM towers + SGM).
 
 Bad input never yields a 500: 400 for bad parameters or fields (FastAPI's 422 is folded into 400),
 413 for a body or image over the limits, 415 for a part that is not an image, 503 + Retry-After when

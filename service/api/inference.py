@@ -34,6 +34,7 @@ class StereoMatch:
     result: StereoResult
     left: np.ndarray  # uint8 HxWx3, the colours of the point cloud
     timings: dict[str, float]  # decode, queue, then the matcher's stages
+    started: float  # perf_counter() when the request was admitted, for the total
 
 
 class InferenceService:
@@ -77,9 +78,9 @@ class InferenceService:
             self.metrics.rejections.inc()
             raise HTTPException(503, str(full), headers={"Retry-After": str(full.retry_after)}) from None
         with admission:
-            return await self._match_admitted(request, options)
+            return await self._match_admitted(request, options, time.perf_counter())
 
-    async def _match_admitted(self, request: Request, options: MatchOptions) -> StereoMatch:
+    async def _match_admitted(self, request: Request, options: MatchOptions, admitted: float) -> StereoMatch:
         left_bytes, right_bytes = await _read_pair(request)
         started = time.perf_counter()
         left, right = await run_in_threadpool(self._decode_pair, left_bytes, right_bytes)
@@ -105,8 +106,9 @@ class InferenceService:
         except ValueError as error:  # the matcher's word on bad options for this pair
             raise HTTPException(400, str(error)) from None
         timings["queue"] = began - queued
-        timings.update(result.timings)
-        return StereoMatch(result=result, left=left, timings=timings)
+        # The matcher's own "total" is left out: the route reports the whole request's total instead.
+        timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
+        return StereoMatch(result=result, left=left, timings=timings, started=admitted)
 
     def _decode_pair(self, left_bytes: bytes, right_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
         images = []

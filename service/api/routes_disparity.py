@@ -11,7 +11,13 @@ from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
 from service.api import geometry
-from service.api.encoding import FILE_EXTENSIONS, multipart_mixed, negotiate_format, server_timing, validity_png
+from service.api.encoding import (
+    FILE_EXTENSIONS,
+    multipart_mixed,
+    negotiate_format,
+    server_timing,
+    validity_png,
+)
 from service.api.errors import error_responses
 from service.api.inference import InferenceService, StereoMatch
 from service.io import encode_disparity, media_type
@@ -45,15 +51,17 @@ Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 
 def stereo_options(
     max_disparity: Annotated[
-        int | None, Query(ge=1, description="Disparities searched: 0..max_disparity-1 (default: the model's).")
+        int | None, Query(ge=1, description="Disparities searched: 0..max_disparity-1 (default: model's).")
     ] = None,
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
     fill: Annotated[bool, Query(description="Fill invalid pixels along rays (needs lr_check).")] = True,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
-    p1: Annotated[float | None, Query(ge=0, description="SGM small-jump penalty (default: the model's).")] = None,
-    p2: Annotated[float | None, Query(ge=0, description="SGM large-jump penalty (default: the model's).")] = None,
+    p1: Annotated[float | None, Query(ge=0, description="SGM small-jump penalty (default: model's).")] = None,
+    p2: Annotated[float | None, Query(ge=0, description="SGM large-jump penalty (default: model's).")] = None,
 ) -> MatchOptions:
-    return MatchOptions(max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2)
+    return MatchOptions(
+        max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2
+    )
 
 
 Options = Annotated[MatchOptions, Depends(stereo_options)]
@@ -64,7 +72,8 @@ def _service(request: Request) -> InferenceService:
 
 
 def _binary(media: str, description: str) -> dict[str, Any]:
-    return {"content": {media: {"schema": {"type": "string", "format": "binary"}}}, "description": description}
+    schema = {"type": "string", "format": "binary"}
+    return {"content": {media: {"schema": schema}}, "description": description}
 
 
 @router.post(
@@ -78,7 +87,10 @@ def _binary(media: str, description: str) -> dict[str, Any]:
             "invalid) or color (RGB PNG). With validity=true: multipart/mixed with the parts "
             "'disparity' and 'validity' (8-bit PNG of validity codes).",
             "content": {
-                "image/png": {}, "application/x-npy": {}, "image/x-portable-floatmap": {}, "multipart/mixed": {},
+                "image/png": {},
+                "application/x-npy": {},
+                "image/x-portable-floatmap": {},
+                "multipart/mixed": {},
             },
         },
         **_ERRORS,
@@ -135,7 +147,8 @@ async def depth(
     match = await service.match(request, options)
 
     def encode() -> Encoded:
-        depth = geometry.depth_from_disparity(match.result.disparity, focal_px=focal_px, baseline_m=baseline_m)
+        disparity = match.result.disparity
+        depth = geometry.depth_from_disparity(disparity, focal_px=focal_px, baseline_m=baseline_m)
         if chosen == "png16":
             return geometry.depth_png16(depth), "image/png", {"X-Depth-Format": chosen}
         return geometry.depth_npy(depth), "application/x-npy", {"X-Depth-Format": chosen}
@@ -162,7 +175,8 @@ async def pointcloud(
     match = await service.match(request, options)
 
     def encode() -> Encoded:
-        depth = geometry.depth_from_disparity(match.result.disparity, focal_px=focal_px, baseline_m=baseline_m)
+        disparity = match.result.disparity
+        depth = geometry.depth_from_disparity(disparity, focal_px=focal_px, baseline_m=baseline_m)
         body, count = geometry.point_cloud_ply(depth, match.left, focal_px=focal_px, cx=cx, cy=cy)
         return body, "application/x-ply", {"X-Point-Count": str(count)}
 
@@ -173,6 +187,7 @@ async def _respond(service: InferenceService, match: StereoMatch, encode: Callab
     """Encode off the event loop, then attach the stage timings (also recorded as metrics)."""
     started = time.perf_counter()
     body, media, headers = await run_in_threadpool(encode)
-    timings = {**match.timings, "encode": time.perf_counter() - started}
+    finished = time.perf_counter()
+    timings = {**match.timings, "encode": finished - started, "total": finished - match.started}
     service.metrics.observe_stages(timings)
     return Response(body, media_type=media, headers={**headers, "Server-Timing": server_timing(timings)})

@@ -48,7 +48,9 @@ async def metrics(request: Request) -> Response:
     return Response(_service(request).metrics.exposition(), media_type=CONTENT_TYPE)
 
 
-@router.get("/v1/model", tags=["model"], summary="The served model's manifest", responses=error_responses(503))
+@router.get(
+    "/v1/model", tags=["model"], summary="The served model's manifest", responses=error_responses(503)
+)
 async def model(request: Request) -> dict[str, Any]:
     return _service(request).manifest
 

@@ -29,7 +29,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="worker processes, each with its own model and queue (default 1)")
     parser.add_argument("--threads", type=int, metavar="N", help="compute threads per worker (default: "
                         "$ADSM_THREADS, else the cores divided among the workers)")
-    parser.add_argument("--log-level", default="info", choices=("critical", "error", "warning", "info", "debug"))
+    parser.add_argument(
+        "--log-level", default="info", choices=("critical", "error", "warning", "info", "debug")
+    )
     parser.set_defaults(func=run)
 
 
