@@ -1,0 +1,192 @@
+"""Export: deconv-as-conv, ONNX Runtime == PyTorch, the model folder, int8, the runtime end to end."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+import torch.nn.functional as F
+from PIL import Image
+
+from export.quantize import calibration_images, quantize_folder
+from export.to_onnx import export_folder, fold_tower, main, tower_to_onnx
+from service.cli import main as adsm
+from service.features import ModelError, load_manifest
+from service.features.manifest import SCHEMA_PATH
+from service.features.towers import FeatureTowers
+from service.matcher import Matcher
+from training.checkpoint import save_checkpoint
+from training.networks import TowerPair, build_tower_pair, dense_features
+
+PROVENANCE = {"command": "python -m training.train", "data": "synthetic", "wall_time_s": 2.0, "iterations": 5}
+
+
+def _with_statistics(pair: TowerPair, seed: int = 0) -> TowerPair:
+    """Random weights plus non-trivial BN statistics and affine terms, so that folding is really tested."""
+    torch.manual_seed(seed)
+    with torch.no_grad():
+        for module in pair.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.weight.uniform_(0.5, 1.5)
+                module.bias.uniform_(-0.2, 0.2)
+        pair.train()
+        for _ in range(2):
+            pair.left(torch.rand(2, 3, 64, 64))
+            pair.right(torch.rand(2, 3, 64, 64))
+    return pair.eval()
+
+
+def _relative_error(actual: np.ndarray, expected: np.ndarray) -> float:
+    return float(np.abs(actual - expected).max() / np.abs(expected).max())
+
+
+def _ort_features(model: onnx.ModelProto, image: torch.Tensor) -> np.ndarray:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
+    return session.run(None, {"image": image.numpy()})[0]
+
+
+def test_stride1_transposed_conv_equals_full_conv_with_flipped_kernel() -> None:
+    torch.manual_seed(0)
+    deconv = torch.nn.ConvTranspose2d(3, 4, 5, bias=False)
+    image = torch.rand(1, 3, 9, 12)
+    flipped = deconv.weight.detach().transpose(0, 1).flip(2, 3)
+    with torch.no_grad():
+        torch.testing.assert_close(F.conv2d(image, flipped, padding=4), deconv(image))
+    folded = fold_tower(build_tower_pair("37-1deconv5-4conv", channels=4).left)
+    assert folded[0].padding == 4 and folded[0].weight.shape == (4, 3, 5, 5)
+    assert [layer.relu for layer in folded] == [False, True, True, True, False]
+    assert folded[-1].bias is None and all(layer.bias is not None for layer in folded[:-1])
+
+
+@pytest.mark.parametrize("name", ["37-1deconv5-4conv", "37-3deconv-6conv", "29-1deconv2-4conv", "45-8conv"])
+@pytest.mark.parametrize("opset", [13, 17, 18])
+def test_onnx_runtime_matches_pytorch_eval_at_odd_shapes(name: str, opset: int) -> None:
+    pair = _with_statistics(build_tower_pair(name, channels=6))
+    model = tower_to_onnx(pair.left, opset=opset)
+    image_input = model.graph.input[0].type.tensor_type.shape.dim
+    assert [d.dim_param or d.dim_value for d in image_input] == [1, 3, "height", "width"]
+    for height, width in [(1, 1), (17, 40), (37, 37), (31, 77)]:
+        image = torch.rand(1, 3, height, width)
+        with torch.no_grad():
+            expected = dense_features(pair.left, image).numpy()
+        actual = _ort_features(model, image)
+        assert actual.shape == (1, 6, height, width)
+        assert _relative_error(actual, expected) < 1e-4
+
+
+def _export(tmp_path: Path, *, channels: int = 4, shared: bool = False, training: dict | None = PROVENANCE,
+            **overrides) -> Path:
+    pair = _with_statistics(build_tower_pair("29-1deconv3-4conv", channels=channels, shared=shared))
+    checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=training,
+                                 metrics={"synthetic": {"epe": 3.5}}, deploy={"trained_range": [0, 96]})
+    return export_folder(checkpoint, tmp_path / "Model_A", command="test", **overrides).parent
+
+
+def test_exported_folder_has_a_valid_manifest_with_provenance(tmp_path: Path) -> None:
+    folder = _export(tmp_path, p1=12.0)
+    manifest = load_manifest(folder)
+    jsonschema.validate(manifest, json.loads(SCHEMA_PATH.read_text()))
+    assert manifest["name"] == "model_a"
+    assert manifest["config"] == "29-1deconv3-4conv" and manifest["channels"] == 4
+    assert manifest["receptive_field"] == 33  # dense field: patch 29 + 2 * (3 - 1)
+    assert manifest["training"] == PROVENANCE and manifest["metrics"] == {"synthetic": {"epe": 3.5}}
+    assert manifest["sgm"]["p1"] == 12.0 and manifest["sgm"]["p2"] == 160.0
+    assert manifest["disparity"]["trained_range"] == [0, 96] and manifest["cost"]["scale"] == 128.0
+    assert manifest["onnx"] == {**manifest["onnx"], "opset": 17, "precision": "fp32"}
+    for name in ("left.onnx", "right.onnx"):
+        onnx.checker.check_model(str(folder / name), full_check=True)
+
+
+def test_runtime_refuses_a_tampered_tower(tmp_path: Path) -> None:
+    folder = _export(tmp_path)
+    FeatureTowers(folder, threads=1)
+    tampered = bytearray((folder / "right.onnx").read_bytes())
+    tampered[-1] ^= 0xFF
+    (folder / "right.onnx").write_bytes(bytes(tampered))
+    with pytest.raises(ModelError, match="does not match its manifest"):
+        FeatureTowers(folder, threads=1)
+
+
+def test_trained_checkpoint_without_trained_range_needs_one(tmp_path: Path) -> None:
+    pair = build_tower_pair("29-4conv", channels=2)
+    checkpoint = save_checkpoint(tmp_path / "c.pt", model=pair, step=1, training=PROVENANCE)
+    with pytest.raises(ValueError, match="--trained-range"):
+        export_folder(checkpoint, tmp_path / "out")
+    manifest = load_manifest(export_folder(checkpoint, tmp_path / "out", trained_range=[0, 50]).parent)
+    assert manifest["disparity"]["trained_range"] == [0, 50]
+
+
+def test_cli_documents_every_option_and_reports_errors(capsys: pytest.CaptureFixture[str],
+                                                         tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    text = capsys.readouterr().out
+    for option in ("--checkpoint", "--out", "--int8", "--calibration", "--opset", "--cost-scale", "--p1",
+                   "--p2", "--max-disparity", "--trained-range", "--name", "skimage"):
+        assert option in text
+    assert main(["--checkpoint", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "x")]) == 1
+    assert "export.to_onnx: error:" in capsys.readouterr().err
+
+
+def test_calibration_refuses_the_evaluation_pair_and_unknown_images(tmp_path: Path) -> None:
+    cones = tmp_path / "middlebury2003-cones"
+    cones.mkdir()
+    Image.new("RGB", (8, 8)).save(cones / "left.png")
+    with pytest.raises(ValueError, match="evaluation-only"):
+        calibration_images(str(cones))
+    with pytest.raises(ValueError, match="no scikit-image data image 'nope'"):
+        calibration_images("skimage:nope")
+    with pytest.raises(ValueError, match="names no images"):
+        calibration_images(str(tmp_path / "*.jpg"))
+    assert [name for name, _ in calibration_images("skimage:astronaut,brick")] == ["astronaut", "brick"]
+
+
+def test_int8_twin_is_qdq_and_records_its_accuracy(tmp_path: Path) -> None:
+    folder = _export(tmp_path, channels=4)
+    lines: list[str] = []
+    manifest = load_manifest(quantize_folder(folder, tmp_path / "int8", calibration="skimage:brick,rocket",
+                                             log=lines.append).parent)
+    jsonschema.validate(manifest, json.loads(SCHEMA_PATH.read_text()))
+    assert manifest["name"] == "model_a-int8" and manifest["onnx"]["precision"] == "int8"
+    accuracy = manifest["onnx"]["quantization"]["accuracy_vs_fp32"]
+    assert -1.0 <= accuracy["feature_cosine_left"]["p01"] <= accuracy["feature_cosine_left"]["mean"] <= 1.0
+    assert 0.0 <= accuracy["disparity_agreement_1px"] <= 1.0
+    assert any("int8 vs fp32" in line for line in lines)
+    graph = onnx.load(str(tmp_path / "int8" / "left.onnx")).graph
+    ops = {node.op_type for node in graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear", "Conv"} <= ops
+    assert any(init.data_type == onnx.TensorProto.INT8 for init in graph.initializer)
+
+
+def test_random_init_export_runs_through_matcher_and_adsm_predict(tmp_path: Path) -> None:
+    folder = _export(tmp_path, channels=4, shared=True, training=None)
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
+    right = np.roll(left, -5, axis=1)
+    result = Matcher.from_folder(folder, threads=1)(left, right)
+    assert result.disparity.shape == (40, 64) and result.validity.shape == (40, 64)
+    Image.fromarray(left).save(tmp_path / "left.png")
+    Image.fromarray(right).save(tmp_path / "right.png")
+    out = tmp_path / "disparity.npy"
+    code = adsm(["predict", str(tmp_path / "left.png"), str(tmp_path / "right.png"), "-o", str(out),
+                 "--model", str(folder), "--max-disparity", "16"])
+    assert code == 0 and np.load(out).shape == (40, 64)
+
+
+@pytest.mark.slow
+def test_paper_config_64_channels_matches_pytorch_at_kitti_size(tmp_path: Path) -> None:
+    pair = _with_statistics(build_tower_pair("37-1deconv5-4conv", channels=64))
+    model = tower_to_onnx(pair.right)
+    image = torch.rand(1, 3, 375, 1242)
+    with torch.no_grad():
+        expected = dense_features(pair.right, image).numpy()
+    assert _relative_error(_ort_features(model, image), expected) < 1e-4
