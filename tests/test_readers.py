@@ -1,0 +1,142 @@
+"""Dataset readers on tiny fixtures written in each public layout, and the SPEC parser."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from service.datasets import open_dataset
+from service.datasets.readers import KITTI_MAX_DISPARITY, detect_kind
+from service.io import write_disparity
+
+HEIGHT, WIDTH = 6, 10
+CONES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "middlebury2003-cones"
+
+
+def truth() -> np.ndarray:
+    disparity = (np.arange(HEIGHT * WIDTH, dtype=np.float32).reshape(HEIGHT, WIDTH) / 4 + 1.25)
+    disparity[0, :3] = np.nan
+    return disparity
+
+
+def write_rgb(path: Path, seed: int) -> np.ndarray:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pixels = np.random.default_rng(seed).integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+    Image.fromarray(pixels).save(path)
+    return pixels
+
+
+def write_mask(path: Path, values: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(values.astype(np.uint8)).save(path)
+
+
+def occluded_band(disparity: np.ndarray) -> np.ndarray:
+    noc = disparity.copy()
+    noc[:, 5:7] = np.nan
+    return noc
+
+
+@pytest.mark.parametrize("kind, names", [
+    ("kitti2012", ("colored_0", "colored_1", "disp_occ", "disp_noc")),
+    ("kitti2015", ("image_2", "image_3", "disp_occ_0", "disp_noc_0")),
+])
+def test_kitti_reads_frame_10_pairs_with_png16_truth_and_noc_mask(tmp_path, kind, names):
+    root = tmp_path / "training"
+    left = write_rgb(root / names[0] / "000000_10.png", 1)
+    right = write_rgb(root / names[1] / "000000_10.png", 2)
+    write_rgb(root / names[0] / "000000_11.png", 3)  # scene-flow frame: no ground truth, not a pair
+    write_rgb(root / names[1] / "000000_11.png", 4)
+    (root / names[2]).mkdir()
+    write_disparity(root / names[2] / "000000_10.png", truth(), "png16")
+    (root / names[3]).mkdir()
+    write_disparity(root / names[3] / "000000_10.png", occluded_band(truth()), "png16")
+    write_rgb(root / names[0] / "000001_10.png", 5)  # no right image and no truth: skipped
+
+    assert detect_kind(tmp_path) == kind
+    for spec in (f"{kind}:{tmp_path}", f"{kind}:{root}", str(tmp_path)):
+        dataset = open_dataset(spec)
+        assert len(dataset) == 1
+    pair = dataset[0]
+    assert pair.name == "000000_10" and pair.max_disparity == KITTI_MAX_DISPARITY
+    np.testing.assert_array_equal(pair.left, left)
+    np.testing.assert_array_equal(pair.right, right)
+    np.testing.assert_array_equal(np.isnan(pair.disparity), np.isnan(truth()))
+    np.testing.assert_allclose(pair.disparity, truth(), atol=1 / 256)
+    expected_visible = np.isfinite(occluded_band(truth()))
+    np.testing.assert_array_equal(pair.nonoccluded, expected_visible)
+
+
+def test_middlebury_reads_scene_folders_with_pfm_truth_mask_and_ndisp(tmp_path):
+    scene = tmp_path / "trainingQ" / "Adirondack"
+    left, right = write_rgb(scene / "im0.png", 1), write_rgb(scene / "im1.png", 2)
+    write_disparity(scene / "disp0GT.pfm", truth(), "pfm")
+    mask = np.full((HEIGHT, WIDTH), 255)
+    mask[:, 5:7], mask[0, :3] = 128, 0  # 128 occluded, 0 no truth (MiddEval3's mask0nocc.png)
+    write_mask(scene / "mask0nocc.png", mask)
+    (scene / "calib.txt").write_text("cam0=[1 0 1; 0 1 1; 0 0 1]\nndisp=73\nwidth=10\n")
+    write_rgb(tmp_path / "testQ" / "Australia" / "im0.png", 3)  # test scene: no truth, skipped
+    write_rgb(tmp_path / "testQ" / "Australia" / "im1.png", 4)
+
+    assert detect_kind(tmp_path) == "middlebury"
+    dataset = open_dataset(f"middlebury:{tmp_path}")
+    assert len(dataset) == 1 and len(open_dataset(str(scene))) == 1
+    pair = dataset[0]
+    assert pair.name == "Adirondack" and pair.max_disparity == 73
+    np.testing.assert_array_equal(pair.left, left)
+    np.testing.assert_array_equal(pair.right, right)
+    np.testing.assert_allclose(pair.disparity, truth())  # PFM: exact float, inf -> NaN, rows flipped back
+    np.testing.assert_array_equal(pair.nonoccluded, mask == 255)
+
+
+def test_cones_layout_fixture(tmp_path):
+    folder = tmp_path / "pair"
+    left, right = write_rgb(folder / "left.png", 1), write_rgb(folder / "right.png", 2)
+    write_disparity(folder / "disp_left.png", truth(), "png16")
+    write_mask(folder / "nonocc_mask.png", np.where(np.isfinite(occluded_band(truth())), 255, 0))
+    assert detect_kind(tmp_path) == "cones"
+    pair = open_dataset(f"cones:{tmp_path}")[0]
+    np.testing.assert_array_equal(pair.left, left)
+    np.testing.assert_array_equal(pair.right, right)
+    np.testing.assert_allclose(pair.disparity, truth(), atol=1 / 256)
+    np.testing.assert_array_equal(pair.nonoccluded, np.isfinite(occluded_band(truth())))
+
+
+@pytest.mark.skipif(not CONES.is_dir(), reason="the shared Cones pair is not beside this checkout")
+def test_shared_cones_pair_reads_as_documented():
+    pair = open_dataset(str(CONES))[0]
+    assert pair.left.shape == (375, 450, 3) and pair.max_disparity == 64
+    known = pair.disparity[np.isfinite(pair.disparity)]
+    assert known.min() >= 5 and known.max() <= 56  # the README: 5.5 .. 55 px
+    assert 0.7 < pair.nonoccluded.mean() < 1
+
+
+def test_synthetic_spec_is_the_validation_split():
+    assert len(open_dataset("synthetic")) == 20
+    dataset = open_dataset("synthetic:2")
+    assert len(dataset) == 2 and dataset[1].name == "synthetic-1000000001"
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("", "empty"),
+    ("synthetic:zero", "positive"),
+    ("synthetic:0", "positive"),
+    ("kitti2015:", "needs the dataset folder"),
+    ("sceneflow:/data", "expected synthetic"),
+    ("/no/such/folder", "expected synthetic"),
+])
+def test_bad_specs_are_clear_errors(spec, message):
+    with pytest.raises(ValueError, match=message):
+        open_dataset(spec)
+
+
+def test_missing_or_empty_folders_are_clear_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        open_dataset(f"kitti2015:{tmp_path / 'missing'}")
+    with pytest.raises(ValueError, match="no stereo pairs"):
+        open_dataset(f"middlebury:{tmp_path}")
+    with pytest.raises(ValueError, match="not a KITTI"):
+        open_dataset(str(tmp_path))
