@@ -2,6 +2,7 @@
 
 Options become the ``ADSM_*`` environment variables the app reads, so that every worker process
 (``--workers N`` starts N processes, each with its own model and queue) sees the same settings.
+``--host`` and ``--port`` default to ``$ADSM_HOST`` and ``$ADSM_PORT``, which the image sets.
 """
 
 from __future__ import annotations
@@ -20,9 +21,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Serve POST /disparity, /depth, /pointcloud, a demo page at / and the OpenAPI docs at "
         "/docs. Other settings come from ADSM_* environment variables (see docs/service.md).",
     )
-    parser.add_argument("--host", default="127.0.0.1", help="interface to bind (default 127.0.0.1; "
-                        "0.0.0.0 for every interface)")
-    parser.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    parser.add_argument(
+        "--host", help="interface to bind (default: $ADSM_HOST, else 127.0.0.1; 0.0.0.0 for all)"
+    )
+    parser.add_argument("--port", type=int, help="TCP port (default: $ADSM_PORT, else 8000)")
     parser.add_argument("--model", metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the "
                         "shipped default model)")
     parser.add_argument("--workers", type=int, default=1, metavar="N",
@@ -35,16 +37,26 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+def _env_port() -> int:
+    raw = os.environ.get("ADSM_PORT") or "8000"
+    try:
+        return int(raw)
+    except ValueError:
+        raise ValueError(f"ADSM_PORT must be an integer, got {raw!r}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from service.api.settings import Settings
-    from service.features import ModelError, default_model_dir, load_manifest
+    from service.features import ModelError, default_model_dir, load_manifest, verify_files
 
+    host = args.host or os.environ.get("ADSM_HOST") or "127.0.0.1"
+    port = _env_port() if args.port is None else args.port
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    if not 0 < args.port < 65536:
-        raise ValueError(f"--port must be in 1..65535, got {args.port}")
+    if not 0 < port < 65536:
+        raise ValueError(f"--port must be in 1..65535, got {port}")
     if args.model:
         os.environ["ADSM_MODEL_DIR"] = os.path.abspath(args.model)
     if args.threads is not None:
@@ -53,16 +65,17 @@ def run(args: argparse.Namespace) -> int:
         # N workers each using every core would only fight over them.
         os.environ["ADSM_THREADS"] = str(max(1, (os.cpu_count() or 1) // args.workers))
     settings = Settings.from_env()  # fail here, with one line, on a malformed variable
-    try:
-        load_manifest(settings.model_dir or default_model_dir())  # hashes are verified at start-up
+    try:  # one clear line now rather than a traceback from every worker's start-up
+        folder = settings.model_dir or default_model_dir()
+        verify_files(folder, load_manifest(folder))
     except ModelError as error:
         print(f"adsm: error: {error}", file=sys.stderr)
         return 1
     uvicorn.run(
         _APP_FACTORY,
         factory=True,
-        host=args.host,
-        port=args.port,
+        host=host,
+        port=port,
         workers=args.workers,
         log_level=args.log_level,
         timeout_graceful_shutdown=30,
