@@ -1,0 +1,109 @@
+"""The paper's matching loss (eq. 18 with the soft label of eq. 19), for patch pairs and for dense crops.
+
+Candidates are in strip order, as :class:`training.networks.TowerPair` returns them: candidate n in
+0..200 is the right-image column ``x - round(d_gt) - 100 + n`` (disparity ``round(d_gt) + 100 - n``), so the
+truth is always n = 100. Ground truth is rounded to the nearest integer (half up) as in the paper, whose
+labels sit on whole pixels; sub-pixel accuracy comes later from the runtime's quadratic fit.
+
+Candidates whose column lies outside the right image are excluded the same way in both modes: their
+logit does not enter the softmax and the label is renormalised over the remaining candidates.
+
+Dense mode computes, per image row, every left-right feature product at once (``[B, H, W, W]`` floats:
+256 MiB for a 256 x 512 crop), then gathers each labelled pixel's 201 candidates: the towers run once
+per crop and every valid pixel is a training example.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+HALF_RANGE = 100                       # candidates truth - 100 .. truth + 100
+CANDIDATES = 2 * HALF_RANGE + 1
+SOFT_LABEL = (0.05, 0.2, 0.5, 0.2, 0.05)   # eq. 19 at offsets -2..2 from the truth
+
+
+def soft_label(*, candidates: int = CANDIDATES, device: torch.device | None = None) -> torch.Tensor:
+    """Eq. (19): 0.5 on the truth (the centre), 0.2 one pixel off, 0.05 two pixels off, 0 elsewhere."""
+    if candidates % 2 != 1 or candidates < len(SOFT_LABEL):
+        raise ValueError(f"candidates must be odd and >= {len(SOFT_LABEL)}, got {candidates}")
+    label = torch.zeros(candidates, device=device)
+    centre = candidates // 2
+    label[centre - 2 : centre + 3] = torch.tensor(SOFT_LABEL, device=device)
+    return label
+
+
+def matching_loss(logits: torch.Tensor, inside: torch.Tensor | None = None, *,
+                  reduction: str = "mean") -> torch.Tensor:
+    """Cross-entropy (eq. 18) of candidate ``logits`` [N, K] against the soft label centred at K // 2.
+
+    ``inside`` [N, K] (bool) marks candidates inside the right image; the others are excluded.
+    ``reduction``: "mean" over the N examples, "sum", or "none" (a loss per example).
+    """
+    if logits.ndim != 2:
+        raise ValueError(f"logits must be [N, candidates], got {tuple(logits.shape)}")
+    label = soft_label(candidates=logits.shape[1], device=logits.device).expand_as(logits)
+    if inside is not None:
+        if inside.shape != logits.shape:
+            raise ValueError(f"inside {tuple(inside.shape)} does not match logits {tuple(logits.shape)}")
+        if not bool(inside[:, logits.shape[1] // 2].all()):
+            raise ValueError("the true match of every example must lie inside the right image")
+        logits = logits.masked_fill(~inside, float("-inf"))
+        label = label * inside
+        label = label / label.sum(dim=1, keepdim=True)
+    log_probability = F.log_softmax(logits, dim=1)
+    # 0 * -inf would be NaN: excluded candidates carry no label, so drop their terms explicitly.
+    losses = -(label * log_probability.masked_fill(label == 0, 0.0)).sum(dim=1)
+    if reduction == "none":
+        return losses
+    if reduction == "sum":
+        return losses.sum()
+    if reduction == "mean":
+        return losses.mean()
+    raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}")
+
+
+def rounded_disparity(disparity: torch.Tensor) -> torch.Tensor:
+    """The paper's integer ground truth: round half up (the same rule in patch and dense sampling)."""
+    return torch.floor(disparity + 0.5).long()
+
+
+def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, disparity: torch.Tensor,
+                     *, temperature: torch.Tensor | float, half_range: int = HALF_RANGE
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Candidate logits of every pixel with usable ground truth in a crop.
+
+    ``features_*``: [B, C, H, W] (L2-normalised, from the towers run once per crop); ``disparity``:
+    [B, H, W] float, NaN where unknown. A pixel is used when its truth is known and its match
+    ``x - round(d)`` is inside the crop. Returns logits [M, 2 * half_range + 1] (strip order), the
+    ``inside`` mask of the same shape, and the used pixels' (b, y, x) indices [M, 3].
+    """
+    if features_left.shape != features_right.shape or features_left.ndim != 4:
+        raise ValueError(f"left {tuple(features_left.shape)} and right {tuple(features_right.shape)} "
+                         "features must both be [B, C, H, W]")
+    batch, _, height, width = features_left.shape
+    if disparity.shape != (batch, height, width):
+        raise ValueError(f"disparity {tuple(disparity.shape)} must be [B, H, W] = {(batch, height, width)}")
+    known = torch.isfinite(disparity)
+    truth = rounded_disparity(torch.where(known, disparity, torch.zeros_like(disparity)))
+    columns = torch.arange(width, device=disparity.device).expand(batch, height, width)
+    match = columns - truth
+    used = known & (match >= 0) & (match < width)
+    b, y, x = used.nonzero(as_tuple=True)
+    # Every left pixel of a row against every right pixel of the same row: [B, H, W, W].
+    products = torch.einsum("bchw,bchv->bhwv", features_left, features_right)
+    rows = products[b, y, x]                                                  # [M, W]
+    offsets = torch.arange(-half_range, half_range + 1, device=disparity.device)
+    candidate_columns = match[b, y, x][:, None] + offsets[None, :]           # [M, K]
+    inside = (candidate_columns >= 0) & (candidate_columns < width)
+    scores = rows.gather(1, candidate_columns.clamp(0, width - 1))
+    return temperature * scores, inside, torch.stack([b, y, x], dim=1)
+
+
+def dense_matching_loss(features_left: torch.Tensor, features_right: torch.Tensor, disparity: torch.Tensor,
+                        *, temperature: torch.Tensor | float, reduction: str = "mean") -> torch.Tensor:
+    """:func:`matching_loss` over every usable pixel of a crop (see :func:`dense_candidates`)."""
+    logits, inside, _ = dense_candidates(features_left, features_right, disparity, temperature=temperature)
+    if logits.shape[0] == 0:
+        raise ValueError("no pixel of the crop has usable ground truth")
+    return matching_loss(logits, inside, reduction=reduction)
