@@ -1,0 +1,42 @@
+"""``python -m bench``: list the benchmarks; ``python -m bench NAME [options]``: run one."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import pkgutil
+import sys
+from pathlib import Path
+
+import bench
+
+
+def _benchmarks() -> dict[str, str]:
+    """Benchmark name -> first line of its docstring, read without importing (imports can be heavy)."""
+    found = {}
+    for module in pkgutil.iter_modules(bench.__path__):
+        if module.name.startswith("_"):
+            continue
+        source = (Path(bench.__path__[0]) / f"{module.name}.py").read_text(encoding="utf-8")
+        docstring = ast.get_docstring(ast.parse(source)) or ""
+        found[module.name] = docstring.strip().splitlines()[0] if docstring.strip() else ""
+    return found
+
+
+def main(argv: list[str]) -> int:
+    benchmarks = _benchmarks()
+    if not argv or argv[0] in ("-h", "--help", "list"):
+        print("usage: python -m bench NAME [options]   (python -m bench NAME --help for its options)\n")
+        for name, summary in sorted(benchmarks.items()):
+            print(f"  {name:<16} {summary}")
+        return 0
+    name = argv[0]
+    if name not in benchmarks:
+        known = ", ".join(sorted(benchmarks))
+        print(f"bench: error: unknown benchmark {name!r}; have {known}", file=sys.stderr)
+        return 2
+    return int(importlib.import_module(f"bench.{name}").main(argv[1:]) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
