@@ -21,7 +21,10 @@ from service.validation import Validity
 
 SHIFT = 4  # true disparity of the synthetic pair
 HEIGHT, WIDTH = 64, 96
-SETTINGS = Settings(queue_size=2, max_body_bytes=120_000, max_pixels=HEIGHT * WIDTH, max_disparity=32)
+SETTINGS = Settings(
+    queue_size=2, max_body_bytes=120_000, max_pixels=HEIGHT * WIDTH, max_disparity=32,
+    max_cost_cells=HEIGHT * WIDTH * 16,
+)
 INTERIOR = (slice(8, HEIGHT - 8), slice(16, WIDTH - 8))  # away from borders and the occluded left strip
 
 
@@ -380,6 +383,13 @@ async def test_pixel_limit_is_413_before_decoding(client: httpx.AsyncClient) -> 
     taller = png(stereo_pair(height=HEIGHT + 1)[0])
     response = await client.post("/disparity", files={"left": ("l.png", taller), "right": ("r.png", taller)})
     assert_error(response, 413, "pixels")
+
+
+async def test_cost_volume_limit_is_413(client: httpx.AsyncClient) -> None:
+    too_deep = await client.post("/disparity", params={"max_disparity": 17}, files=PAIR)
+    assert_error(too_deep, 413, "96 x 64 pixels x 17 disparities", "ADSM_MAX_COST_CELLS")
+    # Without max_disparity the model's default range applies, clipped to the width (96).
+    assert_error(await client.post("/disparity", files=PAIR), 413, "x 96 disparities")
 
 
 async def test_body_limit_by_content_length_is_413(client: httpx.AsyncClient) -> None:

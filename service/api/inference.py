@@ -95,6 +95,7 @@ class InferenceService:
                 400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
                 f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
             )
+        self._check_cost_volume(left.shape[0], left.shape[1], options)
         queued = time.perf_counter()
         try:
             began, result = await self.slot.run(
@@ -109,6 +110,17 @@ class InferenceService:
         # The matcher's own "total" is left out: the route reports the whole request's total instead.
         timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
         return StereoMatch(result=result, left=left, timings=timings, started=admitted)
+
+    def _check_cost_volume(self, height: int, width: int, options: MatchOptions) -> None:
+        # The matcher's rule for the range: the request's, else the model's default, clipped to the width.
+        disparities = min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+        cells = height * width * disparities
+        if cells > self.settings.max_cost_cells:
+            raise HTTPException(
+                413, f"{width} x {height} pixels x {disparities} disparities = {cells} cost-volume cells "
+                f"exceeds this server's limit of {self.settings.max_cost_cells} (ADSM_MAX_COST_CELLS); "
+                "lower max_disparity or send smaller images",
+            )
 
     def _decode_pair(self, left_bytes: bytes, right_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
         images = []

@@ -17,14 +17,16 @@ class Settings:
     queue_size: int = 4  # requests that may wait while one inference runs; more -> 503 at once
     max_body_bytes: int = 32 * 1024 * 1024  # whole request body, multipart framing included
     max_pixels: int = 2_100_000  # per image, checked on the header before decoding (1920x1080 fits)
-    max_disparity: int = 256  # upper bound for the max_disparity query (bounds cost-volume memory)
+    max_disparity: int = 256  # upper bound for the max_disparity query
+    # Height x width x disparities of one request: bounds memory (about 8 bytes per cell, two volumes).
+    max_cost_cells: int = 100_000_000
     warmup: bool = True  # compile and run every kernel before /readyz turns ready
 
     def __post_init__(self) -> None:
         for name in ("queue_size",):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("max_body_bytes", "max_pixels", "max_disparity"):
+        for name in ("max_body_bytes", "max_pixels", "max_disparity", "max_cost_cells"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.threads is not None and self.threads < 1:
@@ -33,7 +35,8 @@ class Settings:
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
         """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
-        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY`` and ``ADSM_WARMUP``; unset or empty keeps the default."""
+        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS`` and ``ADSM_WARMUP``; unset or
+        empty keeps the default."""
         env = os.environ if environ is None else environ
         values: dict[str, object] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
@@ -44,6 +47,7 @@ class Settings:
             ("max_body_bytes", _parse_int),
             ("max_pixels", _parse_int),
             ("max_disparity", _parse_int),
+            ("max_cost_cells", _parse_int),
             ("warmup", _parse_bool),
         ):
             name = f"ADSM_{field.upper()}"
