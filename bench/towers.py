@@ -138,7 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="also write the rows as JSON")
     args = parser.parse_args(argv)
     height, width = args.size
-    print(f"{args.config} tower at {height}x{width}, {args.threads} threads, onnxruntime {ort.__version__}")
+    load = os.getloadavg()[0]  # the machine may be shared: a load above the thread count skews the times
+    print(f"{args.config} tower at {height}x{width}, {args.threads} threads, onnxruntime {ort.__version__}, "
+          f"load average {load:.1f} at start")
     print(f"{'C':>3} {'GFLOP':>7} {'fp32 s':>8} {'GFLOP/s':>8} {'int8 s':>8} {'GFLOP/s':>8} "
           f"{'ref fp32':>9} {'ref int8':>9}  (ref: one {REFERENCE_KERNEL}x{REFERENCE_KERNEL} conv, GFLOP/s)")
     rows = []
@@ -151,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{row['int8_s']:>8} {row['int8_gflops']:>8} {row['reference_fp32_gflops']:>9} "
                   f"{row['reference_int8_gflops']:>9}", flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"size": [height, width], "threads": args.threads, "rows": rows},
-                                        indent=2) + "\n")
+        summary = {"size": [height, width], "threads": args.threads, "load_average_at_start": round(load, 1),
+                   "load_average_at_end": round(os.getloadavg()[0], 1), "rows": rows}
+        args.json.write_text(json.dumps(summary, indent=2) + "\n")
     return 0

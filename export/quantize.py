@@ -2,9 +2,10 @@
 
 ONNX Runtime's ``quantize_static`` inserts QuantizeLinear/DequantizeLinear around every Conv: int8
 weights per output channel, uint8 activations per tensor with MinMax ranges calibrated on stereo-like
-views (an image and the same image seen 8 pixels further right). The padding and the final L2
-normalisation stay fp32. No stereo data set exists on these machines, so the default calibration uses
-photographs and textures shipped inside scikit-image; the evaluation pair (Cones) is refused.
+views (an image and the same image seen 8 pixels further right, or the project's synthetic stereo
+pairs). The padding and the final L2 normalisation stay fp32. No stereo data set exists on these
+machines, so the default calibration uses photographs and textures shipped inside scikit-image; the
+evaluation pair (Cones) is refused.
 
 The accuracy is measured on a held-out photograph (never in the calibration set), warped by a known
 disparity ramp into a right view: per-pixel cosine between fp32 and int8 features, and the share of
@@ -41,10 +42,12 @@ HELD_OUT = "skimage:coffee"          # accuracy image, never part of the default
 CALIBRATION_SHIFT = 8                # px between the two calibration views
 CROP = (192, 256)                    # calibration crop (H, W): large enough for the 45 px receptive fields
 EVALUATION_ONLY = ("middlebury2003-cones",)
+SYNTHETIC_SEED = 900_000_000         # calibration pairs: below the synthetic validation seeds (1e9 on)
 CALIBRATION_HELP = (
     "calibration images for --int8: 'skimage' or 'skimage:NAME,NAME' (images shipped in scikit-image's "
-    "data folder, by file stem), a folder of images, or a glob pattern (default: %(default)s). Each image "
-    f"gives a left view and a right view {CALIBRATION_SHIFT} px to the right. The accuracy check uses "
+    "data folder, by file stem), a folder of images, or a glob pattern: each image gives a left view and "
+    f"a right view {CALIBRATION_SHIFT} px to the right; or 'synthetic:N', N pairs of the project's "
+    "synthetic stereo generator (default: %(default)s). The accuracy check uses "
     f"{HELD_OUT}, which must not be among them."
 )
 
@@ -71,6 +74,20 @@ def calibration_images(spec: str) -> list[tuple[str, np.ndarray]]:
     if refused := [p for p in paths if any(part in EVALUATION_ONLY for part in p.resolve().parts)]:
         raise ValueError(f"{refused[0]} belongs to an evaluation-only data set; never calibrate on it")
     return [(p.stem, read_image(p, name=str(p))) for p in paths]
+
+
+def calibration_pairs(spec: str) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, left view, right view) for a calibration SPEC, cropped to at most ``CROP``."""
+    if spec == "synthetic" or spec.startswith("synthetic:"):
+        from service.datasets.synthetic import SyntheticConfig, generate
+
+        count = spec.partition(":")[2]
+        if count and (not count.isdigit() or int(count) < 1):
+            raise ValueError(f"calibration 'synthetic:N' needs a positive pair count, got {count!r}")
+        config = SyntheticConfig(height=CROP[0], width=CROP[1], max_disparity=48)
+        samples = [generate(SYNTHETIC_SEED + i, config) for i in range(int(count or 6))]
+        return [(sample.name, sample.left, sample.right) for sample in samples]
+    return [(name, *stereo_views(image)) for name, image in calibration_images(spec)]
 
 
 def stereo_views(image: np.ndarray, *, shift: int = CALIBRATION_SHIFT) -> tuple[np.ndarray, np.ndarray]:
@@ -114,14 +131,13 @@ def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: st
     """Write the int8 twin of ``fp32_folder`` into ``out``; returns its manifest path."""
     fp32_folder, out = Path(fp32_folder), Path(out)
     manifest = load_manifest(fp32_folder)
-    images = calibration_images(calibration)
+    pairs = calibration_pairs(calibration)
     held_out_name, held_out = calibration_images(HELD_OUT)[0]
-    if any(name == held_out_name for name, _ in images):
+    if any(name == held_out_name for name, _, _ in pairs):
         raise ValueError(f"{HELD_OUT} is the accuracy image; leave it out of the calibration set")
-    pairs = [stereo_views(image) for _, image in images]
     out.mkdir(parents=True, exist_ok=True)
     for index, file_name in enumerate(TOWER_FILES):
-        views = [pair[index] for pair in pairs]
+        views = [pair[1 + index] for pair in pairs]
         with tempfile.TemporaryDirectory(prefix="adsm-quantize-") as scratch:
             # ONNX Runtime's recommended pre-pass: shape inference and graph clean-up before QDQ insertion.
             prepared = Path(scratch) / file_name
@@ -136,9 +152,9 @@ def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: st
     int8 = {**manifest, "name": name, "description": manifest.get("description", "") + "; int8 QDQ"}
     int8["onnx"] = {**manifest["onnx"], "precision": "int8", "quantization": {
         "method": "onnxruntime static QDQ: per-channel int8 weights, per-tensor uint8 activations (MinMax)",
-        "calibration": calibration, "calibration_images": [name for name, _ in images],
-        "calibration_views": f"centred crops up to {CROP[0]}x{CROP[1]}, right view {CALIBRATION_SHIFT} px "
-                             "to the right"}}
+        "calibration": calibration, "calibration_images": [name for name, _, _ in pairs],
+        "calibration_views": f"up to {CROP[0]}x{CROP[1]}; an image's right view is its crop "
+                             f"{CALIBRATION_SHIFT} px to the right"}}
     write_manifest(out, int8)
     accuracy = measure_accuracy(fp32_folder, out, held_out, held_out_name)
     int8["onnx"]["quantization"]["accuracy_vs_fp32"] = accuracy

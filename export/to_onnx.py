@@ -2,6 +2,13 @@
 
     python -m export.to_onnx --checkpoint CKPT --out DIR [--int8 --calibration SPEC] [--opset N]
 
+Writes DIR/left.onnx, DIR/right.onnx and DIR/manifest.json (schema adsm-model/1, validated): config,
+channels, receptive field, input normalisation, cost scale, SGM P1/P2, disparity range, opset, sha256 of
+each file, and the training provenance and metrics copied from the checkpoint. Settings the checkpoint
+does not record (its ``deploy`` dict) fall back to cost scale 128, P1 30, P2 160, default_max 128, or
+come from the options above. With --int8, DIR-int8 holds the int8 twin; the export log prints its
+accuracy against fp32, which its manifest records (onnx.quantization.accuracy_vs_fp32).
+
 Each tower becomes one ONNX graph built from the folded PyTorch weights: ``image`` [1, 3, H, W] ->
 edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
 -> ``features`` [1, C, H, W]. BN is folded into each conv's weights and bias. Stride-1 transposed convs

@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from export.quantize import calibration_images, quantize_folder
+from export.quantize import calibration_images, calibration_pairs, quantize_folder
 from export.to_onnx import export_folder, fold_tower, main, tower_to_onnx
 from service.cli import main as adsm
 from service.features import ModelError, load_manifest
@@ -148,6 +148,12 @@ def test_calibration_refuses_the_evaluation_pair_and_unknown_images(tmp_path: Pa
     with pytest.raises(ValueError, match="names no images"):
         calibration_images(str(tmp_path / "*.jpg"))
     assert [name for name, _ in calibration_images("skimage:astronaut,brick")] == ["astronaut", "brick"]
+    (name, left, right), = calibration_pairs("synthetic:1")
+    assert name.startswith("synthetic-") and left.shape == right.shape == (192, 256, 3)
+    _, left, right = calibration_pairs("skimage:brick")[0]
+    np.testing.assert_array_equal(left[:, 8:], right[:, :-8])  # the right camera sees the scene shifted
+    with pytest.raises(ValueError, match="positive pair count"):
+        calibration_pairs("synthetic:0")
 
 
 def test_int8_twin_is_qdq_and_records_its_accuracy(tmp_path: Path) -> None:
