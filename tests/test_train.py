@@ -1,0 +1,157 @@
+"""Trainer: schedule, deterministic batches, a few real iterations, exact resume, validation via runtime."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from service.datasets import open_dataset
+from training.checkpoint import load_checkpoint
+from training.networks import build_tower_pair
+from training.schedule import FLOOR_FRACTION, learning_rate
+from training.train import main
+from training.trainer import BatchSpec, TrainConfig, TrainingData, train
+from training.trainer.objective import Objective
+from training.validate import TorchTowers, tune_sgm
+
+TINY = dict(channels=4, crop=(48, 96), max_disparity=24, batch_size=2, val_pairs=1, cones="", threads=1)
+
+
+def history(out) -> list[dict]:
+    return [json.loads(line) for line in (out / "history.jsonl").read_text().splitlines()]
+
+
+def test_schedule_warms_up_then_decays_to_the_floor():
+    rates = [learning_rate(s, peak=1e-3, iterations=200) for s in range(200)]
+    assert rates[0] < rates[3] == pytest.approx(1e-3, rel=1e-6)      # 4 warm-up steps (2 %)
+    assert all(a >= b for a, b in itertools.pairwise(rates[4:]))
+    assert rates[-1] == pytest.approx(FLOOR_FRACTION * 1e-3, rel=1e-3)
+    assert learning_rate(150, peak=1e-3, iterations=200, schedule="constant") == 1e-3
+    with pytest.raises(ValueError, match="schedule"):
+        learning_rate(0, peak=1e-3, iterations=10, schedule="steps")
+    with pytest.raises(ValueError):
+        learning_rate(0, peak=0.0, iterations=10)
+
+
+def test_batches_are_a_function_of_seed_and_index():
+    spec = BatchSpec(height=48, width=96, max_disparity=24)
+    data = TrainingData("synthetic", seed=3, spec=spec)
+    left, right, disparity = data.crops([5, 6])
+    again = TrainingData("synthetic", seed=3, spec=spec).crops([5, 6])
+    assert torch.equal(left, again[0]) and torch.equal(right, again[1])
+    assert torch.equal(torch.nan_to_num(disparity, -1.0), torch.nan_to_num(again[2], -1.0))
+    assert left.shape == (2, 3, 48, 96) and disparity.shape == (2, 48, 96)
+    assert not torch.equal(left[0], left[1])
+    assert float(left.min()) >= 0.0 and float(left.max()) <= 1.0
+    assert float(np.nanmax(disparity.numpy())) <= 24.0
+    other_seed = TrainingData("synthetic", seed=4, spec=spec).crops([5])[0]
+    assert not torch.equal(other_seed[0], left[0])
+    plain = TrainingData("synthetic", seed=3, spec=dataclasses.replace(spec, augmentation="none"))
+    assert not torch.equal(plain.crops([5])[0][0], left[0])   # the augmentation changes the views
+
+
+def test_patch_batches_follow_the_paper_geometry():
+    data = TrainingData("synthetic", seed=0, spec=BatchSpec(height=64, width=128, max_disparity=24,
+                                                            patches_per_pair=3))
+    pairs = data.patches([0, 1])
+    assert pairs.left.shape == (6, 3, 37, 37) and pairs.right.shape == (6, 3, 37, 237)
+    assert pairs.inside.shape == (6, 201) and bool(pairs.inside[:, 100].all())
+
+
+def test_evaluation_pair_is_refused_as_training_data():
+    with pytest.raises(ValueError, match="evaluation"):
+        TrainingData("cones:/work/shared/data/middlebury2003-cones", seed=0, spec=BatchSpec())
+    with pytest.raises(ValueError, match="seed"):
+        TrainingData("synthetic", seed=100, spec=BatchSpec())
+
+
+def test_a_few_dense_iterations_learn_and_write_checkpoints(tmp_path):
+    out = tmp_path / "run"
+    summary = train(TrainConfig(**TINY, iterations=6, val_every=6, lr=3e-3, out=str(out)))
+    assert summary["steps"] == 6
+    losses = [row["loss"] for row in history(out)]
+    assert len(losses) == 6 and all(np.isfinite(losses))
+    assert min(losses[3:]) < losses[0]          # it learns: a random network starts near log(201)
+    best = load_checkpoint(out / "best.pt")
+    last = load_checkpoint(out / "last.pt")
+    assert last.step == 6 and last.training["iterations"] == 6 and last.training["finished"]
+    assert last.deploy["trained_range"] == [0, 24]
+    assert set(best.metrics["synthetic-validation"]) >= {"bad2", "bad3", "bad4", "bad5", "epe"}
+    assert last.optimizer is not None and last.rng is not None
+
+
+def test_resume_reproduces_the_loss_curve(tmp_path):
+    config = TrainConfig(**TINY, iterations=4, val_every=2)
+    train(dataclasses.replace(config, out=str(tmp_path / "straight")))
+    halfway = dataclasses.replace(config, out=str(tmp_path / "resumed"))
+    # The same 4-step schedule interrupted after 2 steps, then resumed from its last checkpoint.
+    train(dataclasses.replace(halfway, stop_after=2))
+    assert [r["step"] for r in history(tmp_path / "resumed")] == [1, 2]
+    train(halfway, resume=str(tmp_path / "resumed" / "last.pt"))
+    straight, resumed = history(tmp_path / "straight"), history(tmp_path / "resumed")
+    assert [r["loss"] for r in resumed] == [r["loss"] for r in straight]
+    assert [r["lr"] for r in resumed] == [r["lr"] for r in straight]
+    a = load_checkpoint(tmp_path / "straight" / "last.pt").state_dict
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt").state_dict
+    assert all(torch.equal(a[name], b[name]) for name in a)
+
+
+def test_patch_mode_iterations(tmp_path):
+    out = tmp_path / "patch"
+    train(TrainConfig(**{**TINY, "batch_size": 8}, mode="patch", iterations=2, val_every=2, out=str(out)))
+    rows = history(out)
+    assert [r["examples"] for r in rows] == [8, 8] and all(np.isfinite(r["loss"]) for r in rows)
+
+
+def test_dense_and_patch_objectives_agree_on_the_same_pixel():
+    # A conv-only tower: with a deconv, an isolated patch feeds it zeros where a crop gives real pixels.
+    torch.manual_seed(0)
+    model = build_tower_pair("37-4conv", channels=4).eval()
+    data = TrainingData("synthetic", seed=0, spec=BatchSpec(height=48, width=240, max_disparity=16,
+                                                            augmentation="none"))
+    sample, _ = data.sample(0)
+    from training.data import patch_pairs
+    from training.losses import dense_candidates, matching_loss
+    from training.networks import dense_features
+
+    ys, xs = np.nonzero(np.isfinite(sample.disparity) & (np.arange(240) >= 130)[None, :])
+    pixel = np.array([[ys[0], xs[0]]])
+    pairs = patch_pairs(sample, pixel)
+    with torch.no_grad():
+        patch_loss, _ = Objective(model, mode="patch")(pairs.left, pairs.right, pairs.inside)
+        left, right = (torch.from_numpy(v.transpose(2, 0, 1)).float()[None] / 255 for v in (sample.left,
+                                                                                          sample.right))
+        logits, inside, where = dense_candidates(dense_features(model.left, left),
+                                                 dense_features(model.right, right),
+                                                 torch.from_numpy(sample.disparity)[None],
+                                                 temperature=model.log_temperature.exp())
+        row = int(((where[:, 1] == int(pixel[0, 0])) & (where[:, 2] == int(pixel[0, 1]))).nonzero()[0, 0])
+        dense_loss = matching_loss(logits[row:row + 1], inside[row:row + 1])
+    assert float(patch_loss) == pytest.approx(float(dense_loss), rel=1e-4, abs=1e-5)
+
+
+def test_validation_runs_the_runtime_and_tunes_on_synthetic_only():
+    torch.manual_seed(0)
+    model = build_tower_pair("37-1deconv5-4conv", channels=4)
+    towers = TorchTowers(model, cache=1)
+    image = np.random.default_rng(0).integers(0, 256, (50, 60, 3), dtype=np.uint8)
+    left, _ = towers(image, image)
+    assert left.shape == (4, 50, 60) and left.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(left, axis=0), 1.0, rtol=1e-4)
+    assert towers(image, image)[0] is left                      # cached for the P1/P2 grid
+    best, rows = tune_sgm(model, open_dataset("synthetic:1"), p1_grid=(10.0, 30.0), p2_grid=(160.0,))
+    assert len(rows) == 2
+    chosen = next(r for r in rows if (r["p1"], r["p2"]) == (best["p1"], best["p2"]))
+    assert chosen["bad2"] == min(r["bad2"] for r in rows)
+
+
+def test_cli_rejects_bad_arguments(capsys):
+    assert main(["--iterations", "0"]) == 2
+    assert "--iterations" in capsys.readouterr().err
+    assert main(["--data", "cones:/work/shared/data/middlebury2003-cones", "--iterations", "1"]) == 1
+    assert "evaluation" in capsys.readouterr().err

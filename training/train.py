@@ -1,0 +1,87 @@
+"""Train ADSM feature towers.
+
+    python -m training.train --config 37-1deconv5-4conv --data synthetic --channels 16 --out runs/fast
+    torchrun --nproc_per_node 2 -m training.train ...        (DDP over gloo; --batch-size is per process)
+
+Writes OUT/last.pt (every validation), OUT/best.pt (lowest synthetic validation bad-2), OUT/history.jsonl
+(loss per step) and OUT/validation.jsonl. ``--resume OUT/last.pt`` continues exactly. Export with
+``python -m export.to_onnx --checkpoint OUT/best.pt --out DIR --int8``; tune P1/P2 first with
+``python -m training.validate --checkpoint OUT/best.pt --tune``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+
+from training.networks import DEFAULT_CONFIG, list_configs
+from training.trainer import TrainConfig, train
+from training.trainer.batches import AUGMENTATIONS
+from training.validate import CONES
+
+# Paper defaults for patch mode (section 4: batch 128, 40000 iterations); dense defaults measured here.
+MODE_DEFAULTS = {"patch": {"iterations": 40000, "batch_size": 128},
+                 "dense": {"iterations": 3000, "batch_size": 2}}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m training.train", description=__doc__.split("\n\n")[0],
+                                     epilog=__doc__.split("\n\n", 1)[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--config", default=DEFAULT_CONFIG, choices=list_configs(), metavar="NAME",
+                        help="network config (default: %(default)s)")
+    parser.add_argument("--data", default="synthetic",
+                        help="'synthetic' or a dataset SPEC (kitti2015:PATH, kitti2012:PATH, "
+                             "middlebury:PATH)")
+    parser.add_argument("--mode", choices=("dense", "patch"), default="dense")
+    parser.add_argument("--iterations", type=int, help="optimizer steps (dense 3000, patch 40000)")
+    parser.add_argument("--batch-size", type=int, help="per process: crops (dense, 2) or patch pairs (128)")
+    parser.add_argument("--channels", type=int, default=64)
+    parser.add_argument("--shared", action="store_true", help="one tower for both views")
+    parser.add_argument("--out", default="runs/train")
+    parser.add_argument("--resume", help="checkpoint (OUT/last.pt) to continue exactly")
+    parser.add_argument("--seed", type=int, default=0, help="0..99: picks the training examples and init")
+    parser.add_argument("--lr", type=float, default=1e-3, help="peak Adam learning rate")
+    parser.add_argument("--schedule", choices=("cosine", "constant"), default="cosine")
+    parser.add_argument("--crop", type=int, nargs=2, default=(128, 256), metavar=("H", "W"))
+    parser.add_argument("--max-disparity", type=int, default=96, help="synthetic scenes' nearest disparity")
+    parser.add_argument("--augmentation", choices=AUGMENTATIONS, default="photometric")
+    parser.add_argument("--val-every", type=int, default=200)
+    parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
+    parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
+    parser.add_argument("--stop-after", type=int, metavar="STEP",
+                        help="stop after this step (checkpoint written) without changing the schedule of "
+                             "--iterations: a time-bounded run that --resume can continue")
+    parser.add_argument("--threads", type=int, help="torch threads per process (default: cores / processes)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    defaults = MODE_DEFAULTS[args.mode]
+    command = shlex.join(["python", "-m", "training.train", *(sys.argv[1:] if argv is None else argv)])
+    for name, value in (("iterations", args.iterations), ("batch-size", args.batch_size),
+                        ("channels", args.channels), ("val-every", args.val_every)):
+        if value is not None and value < 1:
+            print(f"training.train: error: --{name} must be >= 1, got {value}", file=sys.stderr)
+            return 2
+    config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared, data=args.data,
+                         mode=args.mode, iterations=args.iterations or defaults["iterations"],
+                         batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
+                         schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
+                         max_disparity=args.max_disparity, augmentation=args.augmentation,
+                         val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
+                         threads=args.threads, stop_after=args.stop_after, command=command)
+    try:
+        summary = train(config, resume=args.resume)
+    except (OSError, ValueError) as error:
+        print(f"training.train: error: {error}", file=sys.stderr)
+        return 1
+    print(json.dumps({k: v for k, v in summary.items() if k != "metrics"}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""Training batches as a pure function of (seed, example index): resume and DDP need no data-loader state.
+
+Example ``i`` of a run draws everything from ``numpy.random.default_rng([seed, i])``: the synthetic scene
+(generator seed ``seed * SEED_STRIDE + i``, always below the validation seeds), or which pair and window of
+a dataset on disk, and the augmentation. Step ``s`` of a run with ``world`` processes and ``batch``
+examples per process uses examples ``(s * world + rank) * batch + k``: every process sees different data,
+and a resumed run sees exactly the examples the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from service.datasets import StereoSample, SyntheticConfig, generate, open_dataset
+from service.datasets.readers import detect_kind
+from service.datasets.synthetic import VALIDATION_SEED
+from training.data import Crop, PatchPairs, random_crop, random_patch_pairs
+
+SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
+EVALUATION_ONLY = ("middlebury2003-cones",)   # real pairs kept for evaluation: never trained on
+AUGMENTATIONS = ("none", "photometric")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class BatchSpec:
+    """What one example looks like: crop size (dense), patch count (patch), disparity range, augmentation."""
+
+    height: int = 128
+    width: int = 256
+    max_disparity: int = 96        # synthetic scenes only: nearest surface
+    patches_per_pair: int = 32     # patch mode: patch pairs cut from each generated pair
+    augmentation: str = "photometric"
+
+    def __post_init__(self) -> None:
+        if self.augmentation not in AUGMENTATIONS:
+            raise ValueError(f"augmentation must be one of {AUGMENTATIONS}, got {self.augmentation!r}")
+        if min(self.height, self.width) < 40:
+            raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
+                             f"{self.height} x {self.width}")
+
+
+class TrainingData:
+    """Examples of ``--data``: ``synthetic`` (generated on the fly) or a dataset SPEC on disk."""
+
+    def __init__(self, data: str, *, seed: int, spec: BatchSpec) -> None:
+        if not 0 <= seed < VALIDATION_SEED // SEED_STRIDE:
+            raise ValueError(f"seed must be in 0..{VALIDATION_SEED // SEED_STRIDE - 1}, got {seed}")
+        self.data, self.seed, self.spec = data, seed, spec
+        self.pairs: Sequence[StereoSample] | None = None
+        if data != "synthetic":
+            _refuse_evaluation_data(data)
+            self.pairs = open_dataset(data)
+        self.synthetic = SyntheticConfig(height=spec.height, width=spec.width,
+                                         max_disparity=spec.max_disparity)
+
+    @property
+    def trained_range(self) -> list[int]:
+        """Disparities the network sees in training (for the manifest)."""
+        return [0, self.spec.max_disparity] if self.pairs is None else [0, 192]
+
+    def sample(self, index: int) -> tuple[StereoSample, np.random.Generator]:
+        """Pair of example ``index`` and the generator that cuts and augments it."""
+        rng = np.random.default_rng([self.seed, index])
+        if self.pairs is None:
+            return generate(self.seed * SEED_STRIDE + index, self.synthetic), rng
+        return self.pairs[int(rng.integers(len(self.pairs)))], rng
+
+    def crops(self, indices: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Dense batch: left, right [B, 3, h, w] in [0, 1] and disparity [B, h, w] (NaN unknown)."""
+        crops = []
+        for index in indices:
+            sample, rng = self.sample(index)
+            crop = random_crop(sample, rng, height=self.spec.height, width=self.spec.width)
+            crops.append(self._augment(crop, rng))
+        return (torch.stack([c.left for c in crops]), torch.stack([c.right for c in crops]),
+                torch.stack([c.disparity for c in crops]))
+
+    def patches(self, indices: Sequence[int]) -> PatchPairs:
+        """Patch batch: ``patches_per_pair`` patch pairs from each example's pair."""
+        parts = []
+        for index in indices:
+            sample, rng = self.sample(index)
+            pairs = random_patch_pairs(sample, rng, count=self.spec.patches_per_pair)
+            left, right = self._photometric(pairs.left, pairs.right, rng)
+            parts.append(dataclasses.replace(pairs, left=left, right=right))
+        return PatchPairs(*(torch.cat([getattr(p, f.name) for p in parts])
+                            for f in dataclasses.fields(PatchPairs)))
+
+    def _augment(self, crop: Crop, rng: np.random.Generator) -> Crop:
+        left, right = self._photometric(crop.left[None], crop.right[None], rng)
+        return dataclasses.replace(crop, left=left[0], right=right[0])
+
+    def _photometric(self, left: torch.Tensor, right: torch.Tensor, rng: np.random.Generator
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Colour changes shared by both views (channel order, grey) plus per-view contrast/brightness,
+        so the towers learn to match structure, not absolute colour (real pairs differ more than the
+        generator's camera effects alone)."""
+        if self.spec.augmentation == "none":
+            return left, right
+        order = torch.from_numpy(rng.permutation(3))
+        left, right = left[:, order], right[:, order]
+        if rng.random() < 0.2:
+            left = left.mean(dim=1, keepdim=True).expand_as(left)
+            right = right.mean(dim=1, keepdim=True).expand_as(right)
+        views = []
+        for view in (left, right):
+            contrast, brightness = rng.uniform(0.7, 1.3), rng.uniform(-0.1, 0.1)
+            mean = view.mean(dim=(1, 2, 3), keepdim=True)
+            views.append(((view - mean) * contrast + mean + brightness).clamp(0.0, 1.0).contiguous())
+        return views[0], views[1]
+
+
+def _refuse_evaluation_data(data: str) -> None:
+    kind, _, argument = data.partition(":")
+    path = Path(argument or data)
+    named = any(name in str(path.resolve()) for name in EVALUATION_ONLY)
+    if kind == "cones" or named or (path.is_dir() and not argument and detect_kind(path) == "cones"):
+        raise ValueError(f"{data!r} is an evaluation pair (Cones layout): training on it is not allowed")

@@ -1,0 +1,192 @@
+"""The training loop: Adam, scheduled rate, periodic validation through the runtime, last/best checkpoints.
+
+Under ``torchrun`` every process trains on its own examples (see ``batches``) and DistributedDataParallel
+(gloo, CPU) averages the gradients; only rank 0 validates, logs and writes checkpoints. The loss of each
+step (averaged over processes) goes to ``OUT/history.jsonl``; resuming from ``last.pt`` continues that
+file exactly where the interrupted run would have.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from tqdm import tqdm
+
+from service.datasets import open_dataset
+from training.checkpoint import load_checkpoint, save_checkpoint
+from training.networks import build_tower_pair
+from training.schedule import learning_rate
+from training.trainer.batches import BatchSpec, TrainingData
+from training.trainer.objective import Objective
+from training.validate import CONES, DEFAULT_DEPLOY, runtime_metrics
+
+SELECTION_METRIC = ("synthetic-validation", "bad2")   # best.pt: lowest synthetic bad-2 (never Cones)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TrainConfig:
+    config: str = "37-1deconv5-4conv"
+    channels: int = 64
+    shared: bool = False
+    data: str = "synthetic"
+    mode: str = "dense"
+    iterations: int = 1000
+    batch_size: int = 2                 # per process: crops (dense) or patch pairs (patch)
+    lr: float = 1e-3
+    schedule: str = "cosine"
+    weight_decay: float = 0.0
+    seed: int = 0
+    crop: tuple[int, int] = (128, 256)
+    max_disparity: int = 96
+    augmentation: str = "photometric"
+    val_every: int = 200
+    val_pairs: int = 8
+    cones: str = CONES                  # evaluation only; "" skips it
+    out: str = "runs/train"
+    threads: int | None = None
+    stop_after: int | None = None       # stop (validate + checkpoint) after this step, as if interrupted
+    command: str = ""
+
+
+def _distributed() -> tuple[int, int]:
+    if "WORLD_SIZE" in os.environ and int(os.environ["WORLD_SIZE"]) > 1:
+        if not dist.is_initialized():
+            dist.init_process_group("gloo")
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def _threads(config: TrainConfig, world: int) -> int:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    # Processes share the cores; more threads than cores only adds contention.
+    return config.threads or max(1, cores // world)
+
+
+def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
+    """Run (or resume) a training; returns a summary (steps, wall time, best validation metrics)."""
+    rank, world = _distributed()
+    torch.set_num_threads(_threads(config, world))
+    torch.manual_seed(config.seed)
+    if config.mode == "patch" and config.batch_size % 4:
+        raise ValueError("patch mode takes patch pairs in groups of 4 per batch (batch size % 4 == 0)")
+    per_example = config.batch_size // 4 if config.mode == "patch" else 1
+    spec = BatchSpec(height=config.crop[0], width=config.crop[1], max_disparity=config.max_disparity,
+                     patches_per_pair=per_example, augmentation=config.augmentation)
+    data = TrainingData(config.data, seed=config.seed, spec=spec)
+    examples_per_step = 4 if config.mode == "patch" else config.batch_size
+
+    model = build_tower_pair(config.config, channels=config.channels, shared=config.shared)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    out = Path(config.out)
+    step, wall_before, best = 0, 0.0, None
+    if resume:
+        checkpoint = load_checkpoint(resume)
+        model.load_state_dict(checkpoint.state_dict)
+        if checkpoint.optimizer is None:
+            raise ValueError(f"{resume} has no optimizer state: cannot resume exactly")
+        optimizer.load_state_dict(checkpoint.optimizer)
+        checkpoint.restore_rng()
+        step = checkpoint.step
+        wall_before = float(checkpoint.training["wall_time_s"]) if checkpoint.training else 0.0
+        best = checkpoint.config.get("best")
+    objective = Objective(model, mode=config.mode)
+    wrapped = DistributedDataParallel(objective) if world > 1 else objective
+    history = out / "history.jsonl"
+    if rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        _truncate_history(history, step)
+    validation = open_dataset(f"synthetic:{config.val_pairs}")
+    cones = open_dataset(config.cones) if config.cones and rank == 0 else None
+    deploy = {**DEFAULT_DEPLOY, "default_max": 128, "trained_range": data.trained_range}
+
+    started = time.perf_counter()
+    bar = tqdm(total=config.iterations, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
+    metrics: dict[str, Any] = {}
+    end = min(config.iterations, config.stop_after or config.iterations)
+    while step < end:
+        model.train()
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(step, peak=config.lr, iterations=config.iterations,
+                                        schedule=config.schedule)
+        first = (step * world + rank) * examples_per_step
+        indices = range(first, first + examples_per_step)
+        tick = time.perf_counter()
+        if config.mode == "patch":
+            pairs = data.patches(indices)
+            loss, examples = wrapped(pairs.left, pairs.right, pairs.inside)
+        else:
+            loss, examples = wrapped(*data.crops(indices))
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        mean_loss = float(loss.detach())
+        if world > 1:
+            summed = torch.tensor([mean_loss, float(examples)], dtype=torch.float64)
+            dist.all_reduce(summed)
+            mean_loss, examples = float(summed[0]) / world, int(summed[1])
+        if rank == 0:
+            rate = examples / max(time.perf_counter() - tick, 1e-9)
+            bar.set_postfix(loss=f"{mean_loss:.4f}", px_s=f"{rate:.0f}", refresh=False)
+            bar.update(1)
+            with history.open("a") as log:
+                log.write(json.dumps({"step": step, "loss": mean_loss, "examples": examples,
+                                      "lr": optimizer.param_groups[0]["lr"]}) + "\n")
+        if step % config.val_every == 0 or step == end:
+            if rank == 0:
+                metrics = {"synthetic-validation": runtime_metrics(model, validation, deploy=deploy)}
+                if cones is not None:
+                    metrics["middlebury2003-cones"] = runtime_metrics(model, cones, deploy=deploy)
+                score = metrics[SELECTION_METRIC[0]][SELECTION_METRIC[1]]
+                improved = best is None or score < best
+                best = score if improved else best
+                wall = wall_before + time.perf_counter() - started
+                _save(out, config, model, optimizer, step, metrics, deploy, wall, best, data, improved)
+                with (out / "validation.jsonl").open("a") as log:
+                    log.write(json.dumps({"step": step, "wall_time_s": round(wall, 1), **metrics}) + "\n")
+                bar.write(f"step {step}: synthetic bad-2 {score:.2f} % "
+                          f"(best {best:.2f}), cones bad-2 "
+                          f"{metrics.get('middlebury2003-cones', {}).get('bad2')}")
+            if world > 1:
+                dist.barrier()
+    bar.close()
+    wall = wall_before + time.perf_counter() - started
+    return {"steps": step, "wall_time_s": wall, "best": best, "metrics": metrics}
+
+
+def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: dict[str, Any],
+          deploy: dict[str, Any], wall: float, best: float, data: TrainingData, improved: bool) -> None:
+    training = {"command": config.command, "data": _describe_data(config, data),
+                "wall_time_s": round(wall, 1), "iterations": step,
+                "device": f"cpu ({torch.get_num_threads()} threads)",
+                "finished": step >= config.iterations}
+    recorded = {**dataclasses.asdict(config), "best": best, "selection": "/".join(SELECTION_METRIC)}
+    save_checkpoint(out / "last.pt", model=model, step=step, optimizer=optimizer, metrics=metrics,
+                    training=training, config=recorded, deploy=deploy)
+    if improved:
+        save_checkpoint(out / "best.pt", model=model, step=step, optimizer=optimizer, metrics=metrics,
+                        training=training, config=recorded, deploy=deploy)
+
+
+def _describe_data(config: TrainConfig, data: TrainingData) -> str:
+    if config.data != "synthetic":
+        return config.data
+    return (f"synthetic (service.datasets.generate, seeds {config.seed * 10_000_000}+, "
+            f"{config.crop[0]}x{config.crop[1]}, disparities 0..{config.max_disparity}, "
+            f"augmentation {config.augmentation}); validation: synthetic split, {config.val_pairs} pairs")
+
+
+def _truncate_history(history: Path, step: int) -> None:
+    """Keep the logged steps up to ``step`` (a resumed run rewrites what came after its checkpoint)."""
+    if not history.exists():
+        return
+    kept = [line for line in history.read_text().splitlines() if line and json.loads(line)["step"] <= step]
+    history.write_text("".join(line + "\n" for line in kept))

@@ -1,0 +1,37 @@
+"""The training objective as one module, so that DistributedDataParallel can wrap it.
+
+Dense: both towers run once per crop (edge-padded, as deployed) and every labelled pixel is an example
+of eq. (18). Patch: the paper's 37x37 patches against 37x237 strips. Both return (mean loss, examples).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from training.losses import dense_candidates, matching_loss
+from training.networks import TowerPair, dense_features
+
+
+class Objective(nn.Module):
+    def __init__(self, model: TowerPair, *, mode: str) -> None:
+        super().__init__()
+        if mode not in ("dense", "patch"):
+            raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
+        self.model, self.mode = model, mode
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
+                ) -> tuple[torch.Tensor, int]:
+        """Dense: ``target`` is the disparity [B, h, w]. Patch: ``target`` is ``inside`` [N, 201]."""
+        if self.mode == "patch":
+            return matching_loss(self.model(left, right), target), left.shape[0]
+        features_left = dense_features(self.model.left, left)
+        features_right = dense_features(self.model.right, right)
+        temperature = self.model.log_temperature.exp()
+        logits, inside, pixels = dense_candidates(features_left, features_right, target,
+                                                  temperature=temperature)
+        if logits.shape[0] == 0:
+            # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
+            # so DDP's gradient all-reduce sees the same parameters on every process.
+            return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
+        return matching_loss(logits, inside), int(pixels.shape[0])

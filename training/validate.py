@@ -1,0 +1,147 @@
+"""Validation through the runtime: the PyTorch towers inside the same Matcher the service deploys.
+
+:class:`TorchTowers` has the FeatureTowers interface (``manifest``, ``folder``, ``__call__``,
+``warmup``), so cost volume, SGM, sub-pixel fit, inner check and ray filling are the runtime's own code;
+only the towers run in PyTorch. :func:`tune_sgm` grids P1/P2 on the synthetic validation split (never on
+a real evaluation pair), running the towers once per pair.
+
+    python -m training.validate --checkpoint CKPT [--pairs 20] [--tune] [--cones PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import itertools
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from service.datasets import StereoSample, open_dataset
+from service.evaluation.evaluate import evaluate
+from service.matcher import Matcher, MatchOptions
+from training.checkpoint import load_checkpoint, save_checkpoint
+from training.networks import TowerPair, dense_features
+
+DEFAULT_DEPLOY = {"cost_scale": 128.0, "p1": 30.0, "p2": 160.0, "default_max": 128,
+                  "input": {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0],
+                            "std": [1.0, 1.0, 1.0]}}
+# Only P1 / scale and P2 / scale change SGM's winners, so the scale stays at 128 and the penalties move.
+P1_GRID = (10.0, 20.0, 30.0, 45.0, 65.0)
+P2_GRID = (80.0, 160.0, 240.0, 360.0, 540.0)
+CONES = "cones:/work/shared/data/middlebury2003-cones"
+
+
+class TorchTowers:
+    """PyTorch towers with the FeatureTowers interface; features of the last few pairs are cached so
+    that a P1/P2 grid runs the network once per pair."""
+
+    folder = None
+
+    def __init__(self, model: TowerPair, deploy: Mapping[str, Any] | None = None, *, cache: int = 0) -> None:
+        deploy = {**DEFAULT_DEPLOY, **(deploy or {})}
+        self.model = model
+        self.manifest = {"name": f"torch-{model.config.name}-{model.channels}", "channels": model.channels,
+                         "input": deploy["input"], "cost": {"scale": float(deploy["cost_scale"])},
+                         "sgm": {"p1": float(deploy["p1"]), "p2": float(deploy["p2"])},
+                         "disparity": {"default_max": int(deploy["default_max"])}}
+        self._mean = torch.tensor(deploy["input"]["mean"], dtype=torch.float32)[:, None, None]
+        self._std = torch.tensor(deploy["input"]["std"], dtype=torch.float32)[:, None, None]
+        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        self._cache_size = cache
+
+    def _features(self, tower: torch.nn.Module, image: np.ndarray) -> np.ndarray:
+        tensor = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float().div_(255.0)
+        tensor = (tensor - self._mean) / self._std
+        return dense_features(tower, tensor[None])[0].numpy()
+
+    @torch.no_grad()
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = hashlib.sha1(left.tobytes() + right.tobytes()).digest() if self._cache_size else b""
+        if key in self._cache:
+            return self._cache[key]
+        was_training = self.model.training
+        self.model.eval()
+        try:
+            features = (self._features(self.model.left, left), self._features(self.model.right, right))
+        finally:
+            self.model.train(was_training)
+        if self._cache_size:
+            if len(self._cache) >= self._cache_size:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = features
+        return features
+
+    def warmup(self) -> None:
+        image = np.zeros((48, 48, 3), np.uint8)
+        self(image, image)
+
+
+def runtime_metrics(model: TowerPair, dataset: Sequence[StereoSample], *,
+                    deploy: Mapping[str, Any] | None = None, max_disparity: int | None = None,
+                    towers: TorchTowers | None = None) -> dict[str, Any]:
+    """bad-1..5, D1, EPE, density over every ground-truth pixel (dense output: check + fill on)."""
+    matcher = Matcher(towers or TorchTowers(model, deploy))
+    report = evaluate(matcher, dataset, max_disparity=max_disparity)
+    return {**report["all"], "pairs": report["pairs"], "seconds_per_pair": report["seconds_per_pair"]}
+
+
+def tune_sgm(model: TowerPair, dataset: Sequence[StereoSample], *, deploy: Mapping[str, Any] | None = None,
+             p1_grid: Sequence[float] = P1_GRID, p2_grid: Sequence[float] = P2_GRID,
+             log: Any = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """The (P1, P2) of the grid with the lowest bad-2 on ``dataset`` (EPE breaks ties), and every row."""
+    towers = TorchTowers(model, deploy, cache=len(dataset))
+    matcher = Matcher(towers)
+    rows = []
+    for p1, p2 in itertools.product(p1_grid, p2_grid):
+        if p2 < p1:
+            continue
+        report = evaluate(matcher, dataset, options=MatchOptions(p1=p1, p2=p2))
+        rows.append({"p1": p1, "p2": p2, "bad2": report["all"]["bad2"], "bad3": report["all"]["bad3"],
+                     "epe": report["all"]["epe"]})
+        if log is not None:
+            log(json.dumps(rows[-1]))
+    best = min(rows, key=lambda row: (row["bad2"], row["epe"]))
+    return {"p1": best["p1"], "p2": best["p2"]}, rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m training.validate", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--checkpoint", required=True, help="checkpoint to measure (and update with --tune)")
+    parser.add_argument("--pairs", type=int, default=20, help="synthetic validation pairs (default 20)")
+    parser.add_argument("--tune", action="store_true",
+                        help="grid P1/P2 on the synthetic split, store the best in the checkpoint's deploy")
+    parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    checkpoint = load_checkpoint(args.checkpoint)
+    model = checkpoint.build_model()
+    deploy = {**DEFAULT_DEPLOY, **checkpoint.deploy}
+    synthetic = open_dataset(f"synthetic:{args.pairs}")
+    if args.tune:
+        best, rows = tune_sgm(model, synthetic, deploy=deploy, log=print)
+        grid = Path(f"{args.checkpoint}.sgm-grid.json")
+        grid.write_text(json.dumps(rows, indent=1) + "\n")
+        deploy |= best | {"sgm_tuned_on": f"grid P1 {list(P1_GRID)} x P2 {list(P2_GRID)}, lowest bad-2 on "
+                                           f"the synthetic validation split ({args.pairs} pairs)"}
+    metrics = dict(checkpoint.metrics)
+    metrics["synthetic-validation"] = runtime_metrics(model, synthetic, deploy=deploy)
+    if args.cones:
+        metrics["middlebury2003-cones"] = runtime_metrics(model, open_dataset(args.cones), deploy=deploy)
+    print(json.dumps({"deploy": {k: deploy[k] for k in ("p1", "p2", "cost_scale")}, "metrics": metrics},
+                     indent=1))
+    if args.tune:
+        save_checkpoint(args.checkpoint, model=model, step=checkpoint.step, metrics=metrics,
+                        training=checkpoint.training, config=checkpoint.config, deploy=deploy, rng=False)
+        print(f"updated {args.checkpoint}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
