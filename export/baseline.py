@@ -1,6 +1,7 @@
 """Build the classical NCC baseline model folder: ONNX towers whose features are normalised raw patches.
 
-    python -m export.baseline --out service/models/ncc-baseline [--window 9]
+    python -m export.baseline --out service/models/ncc-baseline --measure --evaluate CONES_FOLDER
+    python -m export.baseline --out DIR [--window W --p1 P1 --p2 P2]     (no measurement)
 
 Each tower: RGB -> grey (BT.601), edge padding by w // 2 (inside the graph, so H, W are kept), the
 w x w window around each pixel unfolded into w*w channels with the window mean subtracted (one
@@ -9,13 +10,16 @@ convolution whose kernels are one-hot minus 1 / w^2), then L2 normalisation over
 A flat window (no texture) gives a zero vector, i.e. an indifferent cost 0 at every disparity.
 
 It needs only `onnx` (no torch), proves the runtime end to end before a trained model exists, and stays
-the baseline every trained model must beat. The window and the SGM penalties stored in the manifest were
-chosen with ``python -m export.baseline_tuning`` on synthetic pairs (see that module's docstring).
+the baseline every trained model must beat. ``--measure`` chooses the window and the SGM penalties on
+synthetic pairs from the project's generator (see :func:`measure`) and records its table in the
+manifest's ``build.selection``; the defaults below are that measurement's choice. ``--evaluate`` records
+bad-2/bad-3/EPE on a Middlebury-style folder (evaluation only: nothing is chosen from it).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -31,11 +35,12 @@ GREY = (0.299, 0.587, 0.114)
 # has energy (1/255)^2 ~ 1.5e-5, so textured windows keep a unit norm, while a flat window (whose
 # zero-mean residual is float32 rounding, ~1e-8) maps to ~1e-5 instead of amplified rounding noise.
 NORM_EPS = 1e-6
-# Selected by the measurement recorded in the manifest's "build.selection" (python -m export.baseline_tuning).
-DEFAULT_WINDOW = 9
+# The contract's default scale (docs/architecture.md): NCC 1 -> cost -128.
 COST_SCALE = 128.0
-SGM_P1 = 30.0
-SGM_P2 = 160.0
+# The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
+DEFAULT_WINDOW = 9
+SGM_P1 = 180.0
+SGM_P2 = 640.0
 DEFAULT_MAX_DISPARITY = 128
 
 
@@ -81,10 +86,15 @@ def build_tower(window: int, *, side: str) -> onnx.ModelProto:
     return model
 
 
-def baseline_manifest(*, window: int, name: str, selection: dict | None = None) -> dict:
+def baseline_manifest(
+    *, window: int, name: str, p1: float = SGM_P1, p2: float = SGM_P2, selection: dict | None = None
+) -> dict:
     """The manifest (without ``files``, which write_manifest fills from the written towers)."""
-    build: dict = {"command": f"python -m export.baseline --out <folder> --window {window}"}
+    build: dict = {
+        "command": f"python -m export.baseline --out <folder> --window {window} --p1 {p1} --p2 {p2}"
+    }
     if selection:
+        build["command"] = "python -m export.baseline --out <folder> --measure"
         build["selection"] = selection
     return {
         "schema": "adsm-model/1",
@@ -105,41 +115,133 @@ def baseline_manifest(*, window: int, name: str, selection: dict | None = None) 
             "dtype": "float32",
         },
         "sgm": {
-            "p1": SGM_P1,
-            "p2": SGM_P2,
+            "p1": p1,
+            "p2": p2,
             "paths": 4,
-            "tuned_on": "synthetic slanted-plane pairs with occluding boxes (export.baseline_tuning)",
+            "tuned_on": "synthetic pairs of service.datasets.synthetic (python -m export.baseline --measure)",
         },
         "disparity": {"default_max": DEFAULT_MAX_DISPARITY, "trained_range": [0, 0]},
-        "onnx": {"opset": OPSET, "precision": "fp32", "exporter": f"onnx {onnx.__version__} helper API"},
+        "onnx": {"opset": OPSET, "precision": "fp32", "exporter": "onnx helper API (export/baseline.py)"},
         "training": None,
         "build": build,
         "metrics": {},
     }
 
 
-def build_folder(out: str | Path, *, window: int = DEFAULT_WINDOW, metrics: dict | None = None) -> Path:
+def build_folder(
+    out: str | Path,
+    *,
+    window: int = DEFAULT_WINDOW,
+    p1: float = SGM_P1,
+    p2: float = SGM_P2,
+    selection: dict | None = None,
+    metrics: dict | None = None,
+) -> Path:
     """Write left.onnx, right.onnx and manifest.json into ``out``; returns the manifest path."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     for file_name in TOWER_FILES:
         model = build_tower(window, side=file_name.removesuffix(".onnx"))
         (out / file_name).write_bytes(model.SerializeToString(deterministic=True))
-    manifest = baseline_manifest(window=window, name=out.name)
+    manifest = baseline_manifest(window=window, name=out.name, p1=p1, p2=p2, selection=selection)
     if metrics:
         manifest["metrics"] = metrics
     return write_manifest(out, manifest)
 
 
+# The measurement that chose DEFAULT_WINDOW, SGM_P1 and SGM_P2: synthetic pairs from the project's
+# generator (seeds from TUNING_SEED, far from the validation split), never a real pair with ground truth.
+TUNING_SEED = 700_000_000
+WINDOWS = (5, 7, 9, 11, 13)
+PAPER_PENALTIES = (30.0, 160.0)  # the window is chosen at the paper's P1, P2, then the penalties at it
+PENALTIES = tuple(
+    (p1, p2) for p1 in (15.0, 30.0, 60.0, 90.0, 120.0, 180.0) for p2 in (160.0, 320.0, 480.0, 640.0, 960.0)
+)
+# Cost-volume work grows with w^2, so a larger window must beat a smaller one by more than this (bad-2, %).
+WINDOW_MARGIN = 0.5
+
+
+def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparity: int = 96) -> dict:
+    """Mean bad-1/bad-2 (%) on non-occluded pixels for each window at the paper's penalties, then for each
+    (P1, P2) at the chosen window: the smallest within WINDOW_MARGIN of the best; then the lowest bad-2."""
+    import tempfile
+
+    from service.datasets.synthetic import SyntheticConfig, generate
+    from service.matcher import Matcher, MatchOptions
+
+    config = SyntheticConfig(height=height, width=width, max_disparity=max_disparity * 3 // 4)
+    samples = [generate(TUNING_SEED + index, config) for index in range(pairs)]
+
+    def score(matcher: Matcher, p1: float, p2: float) -> dict:
+        bad1, bad2 = [], []
+        for sample in samples:
+            options = MatchOptions(max_disparity=max_disparity, p1=p1, p2=p2)
+            disparity = matcher(sample.left, sample.right, options).disparity
+            mask = sample.nonoccluded & np.isfinite(sample.disparity)
+            error = np.abs(disparity[mask] - sample.disparity[mask])
+            error[np.isnan(error)] = np.inf
+            bad1.append(100 * float((error > 1).mean()))
+            bad2.append(100 * float((error > 2).mean()))
+        return {"p1": p1, "p2": p2, "bad1": round(sum(bad1) / pairs, 2), "bad2": round(sum(bad2) / pairs, 2)}
+
+    table: dict = {"pairs": f"synthetic seeds {TUNING_SEED}..{TUNING_SEED + pairs - 1}, {height}x{width}, "
+                   f"D={max_disparity}, non-occluded pixels", "windows": {}, "penalties": []}
+    with tempfile.TemporaryDirectory() as scratch:
+        for window in WINDOWS:
+            folder = build_folder(Path(scratch) / f"ncc-{window}", window=window).parent
+            table["windows"][window] = score(Matcher.from_folder(folder), *PAPER_PENALTIES)
+            print(f"window {window}: {table['windows'][window]}", file=sys.stderr)
+        lowest = min(row["bad2"] for row in table["windows"].values())
+        best = min(w for w in WINDOWS if table["windows"][w]["bad2"] <= lowest + WINDOW_MARGIN)
+        matcher = Matcher.from_folder(build_folder(Path(scratch) / "best", window=best).parent)
+        for p1, p2 in PENALTIES:
+            table["penalties"].append(score(matcher, p1, p2))
+            print(f"window {best}: {table['penalties'][-1]}", file=sys.stderr)
+    chosen = min(table["penalties"], key=lambda row: row["bad2"])
+    table["choice"] = {"window": best, "p1": chosen["p1"], "p2": chosen["p2"]}
+    return table
+
+
+def evaluate(folder: Path, pairs_folder: Path) -> dict:
+    """bad-2, bad-3 (%) and EPE of the model folder on each pair of a Middlebury-style folder (all pixels
+    with ground truth, and the non-occluded ones), the runtime's defaults, D = the dataset's range."""
+    from service.datasets.readers import cones
+    from service.matcher import Matcher, MatchOptions
+
+    matcher, metrics = Matcher.from_folder(folder), {}
+    for sample in cones(pairs_folder):
+        result = matcher(sample.left, sample.right, MatchOptions(max_disparity=sample.max_disparity))
+        row = {"max_disparity": sample.max_disparity, "seconds": round(result.timings["total"], 3)}
+        known = np.isfinite(sample.disparity)
+        for suffix, mask in (("", known), ("_nonocc", known & sample.nonoccluded)):
+            error = np.abs(result.disparity[mask] - sample.disparity[mask])
+            error[np.isnan(error)] = np.inf  # an unfilled pixel counts as wrong
+            row[f"bad2{suffix}"] = round(100 * float((error > 2).mean()), 2)
+            row[f"bad3{suffix}"] = round(100 * float((error > 3).mean()), 2)
+            row[f"epe{suffix}"] = round(float(error[np.isfinite(error)].mean()), 3)
+        metrics[sample.name] = row
+    return metrics
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m export.baseline", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True, type=Path, help="model folder to write (created if needed)")
-    parser.add_argument(
-        "--window", type=int, default=DEFAULT_WINDOW, help="odd window side (default: %(default)s)"
-    )
+    parser.add_argument("--out", type=Path, required=True, help="model folder to write (created if needed)")
+    parser.add_argument("--window", type=int, default=DEFAULT_WINDOW, help="odd window side (%(default)s)")
+    parser.add_argument("--p1", type=float, default=SGM_P1, help="SGM P1 in cost units (%(default)s)")
+    parser.add_argument("--p2", type=float, default=SGM_P2, help="SGM P2 in cost units (%(default)s)")
+    parser.add_argument("--measure", action="store_true", help="choose window, P1, P2 by the measurement")
+    parser.add_argument("--evaluate", type=Path, metavar="DIR", help="record metrics on a Middlebury folder")
     args = parser.parse_args(argv)
+    window, p1, p2, selection = args.window, args.p1, args.p2, None
     try:
-        path = build_folder(args.out, window=args.window)
+        if args.measure:
+            selection = measure()
+            window, p1, p2 = (selection["choice"][key] for key in ("window", "p1", "p2"))
+        path = build_folder(args.out, window=window, p1=p1, p2=p2, selection=selection)
+        if args.evaluate is not None:
+            metrics = evaluate(args.out, args.evaluate)
+            path = build_folder(args.out, window=window, p1=p1, p2=p2, selection=selection, metrics=metrics)
+            print(json.dumps(metrics))
     except (OSError, ValueError) as error:
         print(f"export.baseline: error: {error}", file=sys.stderr)
         return 1

@@ -169,8 +169,14 @@ def test_baseline_build_is_deterministic_and_valid():
 
 def test_shipped_folder_is_reproducible_from_the_script(tmp_path):
     manifest = load_manifest(SHIPPED)
-    window = manifest["receptive_field"]
-    rebuilt = build_folder(tmp_path / "ncc-baseline", window=window, metrics=manifest["metrics"]).parent
+    rebuilt = build_folder(
+        tmp_path / "ncc-baseline",
+        window=manifest["receptive_field"],
+        p1=manifest["sgm"]["p1"],
+        p2=manifest["sgm"]["p2"],
+        selection=manifest["build"].get("selection"),
+        metrics=manifest["metrics"],
+    ).parent
     for name in ("left.onnx", "right.onnx"):
         assert (rebuilt / name).read_bytes() == (SHIPPED / name).read_bytes(), name
     assert load_manifest(rebuilt) == manifest
