@@ -25,8 +25,9 @@ def pair(tmp_path_factory) -> tuple[Path, Path]:
     rng = np.random.default_rng(11)
     wide = rng.integers(0, 256, (24, 44, 3), dtype=np.uint8)
     wide = np.repeat(np.repeat(wide, 2, axis=0), 2, axis=1)[:40, :84]  # 2x2 blocks: NCC-friendly texture
-    Image.fromarray(np.ascontiguousarray(wide[:, 4:])).save(folder / "left.png")
-    Image.fromarray(np.ascontiguousarray(wide[:, :-4])).save(folder / "right.png")
+    # left(x) = wide(x) and right(x) = wide(x + 4): the left pixel x is seen at x - 4 in the right view.
+    Image.fromarray(np.ascontiguousarray(wide[:, :-4])).save(folder / "left.png")
+    Image.fromarray(np.ascontiguousarray(wide[:, 4:])).save(folder / "right.png")
     return folder / "left.png", folder / "right.png"
 
 

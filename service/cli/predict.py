@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     if args.validity is not None:
         _write_validity(args.validity, result.validity)
     if args.timings:
-        timings = {"decode": decoded - started, "load_model": loaded - decoded, **result.timings}
+        stages = {name: seconds for name, seconds in result.timings.items() if name != "total"}
+        timings = {"decode": decoded - started, "load_model": loaded - decoded, **stages}
         timings["match"] = matched - loaded
         timings["encode"] = time.perf_counter() - matched
         timings["total"] = time.perf_counter() - started
