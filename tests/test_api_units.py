@@ -1,0 +1,89 @@
+"""Service building blocks without a server: settings from the environment, geometry, format choice,
+and `adsm serve` refusing bad input with one line."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from service.api import Settings
+from service.api.encoding import negotiate_format, server_timing
+from service.api.geometry import depth_from_disparity, depth_png16, point_cloud_ply
+from service.cli import main
+
+
+def test_settings_from_env() -> None:
+    settings = Settings.from_env({
+        "ADSM_MODEL_DIR": "/models/x", "ADSM_THREADS": "3", "ADSM_QUEUE_SIZE": "0",
+        "ADSM_MAX_BODY_BYTES": "1_000_000", "ADSM_MAX_PIXELS": "", "ADSM_WARMUP": "off",
+    })
+    assert settings.model_dir == Path("/models/x") and settings.threads == 3 and settings.queue_size == 0
+    assert settings.max_body_bytes == 1_000_000 and settings.max_pixels == Settings().max_pixels
+    assert settings.warmup is False
+
+
+@pytest.mark.parametrize(
+    ("env", "message"),
+    [
+        ({"ADSM_QUEUE_SIZE": "many"}, "ADSM_QUEUE_SIZE must be an integer"),
+        ({"ADSM_WARMUP": "perhaps"}, "ADSM_WARMUP must be true or false"),
+        ({"ADSM_MAX_PIXELS": "0"}, "max_pixels must be >= 1"),
+        ({"ADSM_QUEUE_SIZE": "-1"}, "queue_size must be >= 0"),
+        ({"ADSM_THREADS": "0"}, "threads must be >= 1"),
+    ],
+)
+def test_settings_reject_bad_values(env: dict[str, str], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        Settings.from_env(env)
+
+
+def test_depth_is_baseline_times_focal_over_disparity() -> None:
+    disparity = np.array([[4.0, 0.0, np.nan, -1.0, 0.001]], np.float32)
+    depth = depth_from_disparity(disparity, focal_px=200.0, baseline_m=0.1)
+    assert depth[0, 0] == pytest.approx(5.0)
+    assert np.isnan(depth[0, 1:4]).all()  # no depth without a positive disparity
+    millimetres = np.asarray(Image.open(io.BytesIO(depth_png16(depth))))
+    assert millimetres.dtype == np.uint16
+    assert millimetres.tolist() == [[5000, 0, 0, 0, 0]]  # 20 km does not fit in uint16 mm: 0, not clipped
+    with pytest.raises(ValueError, match="positive"):
+        depth_from_disparity(disparity, focal_px=0.0, baseline_m=0.1)
+
+
+def test_point_cloud_back_projects_with_the_principal_point() -> None:
+    depth = np.array([[2.0, np.nan], [4.0, 1.0]], np.float32)
+    colours = np.arange(12, dtype=np.uint8).reshape(2, 2, 3)
+    body, count = point_cloud_ply(depth, colours, focal_px=2.0, cx=1.0, cy=0.0)
+    header, _, data = body.partition(b"end_header\n")
+    assert count == 3 and b"element vertex 3\n" in header
+    vertices = np.frombuffer(data, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "u1", 3)])
+    np.testing.assert_allclose(vertices["x"], [(0 - 1) * 2 / 2, (0 - 1) * 4 / 2, (1 - 1) * 1 / 2])
+    np.testing.assert_allclose(vertices["y"], [0.0, 1 * 4 / 2, 1 * 1 / 2])
+    np.testing.assert_array_equal(vertices["rgb"], colours.reshape(-1, 3)[[0, 2, 3]])
+
+
+def test_format_negotiation_and_server_timing() -> None:
+    offered = ("png16", "npy", "pfm", "color")
+    assert negotiate_format("color", "application/x-npy", offered=offered) == "color"
+    assert negotiate_format(None, None, offered=offered) == "png16"
+    assert negotiate_format(None, "image/png;q=0.1, application/x-npy;q=0.9", offered=offered) == "npy"
+    assert negotiate_format(None, "image/x-portable-floatmap", offered=("npy", "png16")) == "npy"
+    assert negotiate_format(None, "application/x-npy;q=0", offered=offered) == "png16"
+    assert server_timing({"towers": 0.0125, "sgm": 1.5}) == "towers;dur=12.50, sgm;dur=1500.00"
+
+
+def test_serve_refuses_a_bad_model_folder_in_one_line(tmp_path: Path, capsys) -> None:
+    assert main(["serve", "--model", str(tmp_path)]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("adsm: error: ") and error.count("\n") == 1
+
+
+def test_serve_refuses_bad_options(capsys, monkeypatch) -> None:
+    assert main(["serve", "--workers", "0"]) == 1
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    monkeypatch.setenv("ADSM_PORT", "http")
+    assert main(["serve"]) == 1
+    assert "ADSM_PORT must be an integer" in capsys.readouterr().err
