@@ -75,6 +75,13 @@ def test_format_negotiation_and_server_timing() -> None:
     assert server_timing({"towers": 0.0125, "sgm": 1.5}) == "towers;dur=12.50, sgm;dur=1500.00"
 
 
+@pytest.fixture(autouse=True)
+def _restore_serve_environment(monkeypatch) -> None:
+    # `adsm serve` writes its options into os.environ for its workers; undo that after each test.
+    for name in ("ADSM_MODEL_DIR", "ADSM_THREADS", "ADSM_PORT", "ADSM_HOST"):
+        monkeypatch.setenv(name, "")
+
+
 def test_serve_refuses_a_bad_model_folder_in_one_line(tmp_path: Path, capsys) -> None:
     assert main(["serve", "--model", str(tmp_path)]) == 1
     error = capsys.readouterr().err
