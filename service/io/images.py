@@ -41,7 +41,9 @@ def read_image(
         image = Image.open(stream)  # reads the header only
     except Image.DecompressionBombError as error:  # Pillow's own header check, far above any stereo pair
         raise ImageTooLargeError(f"{name}: {_reason(error)}") from error
-    except (UnidentifiedImageError, ValueError, SyntaxError, EOFError) as error:  # malformed headers
+    except UnidentifiedImageError as error:  # its message names the stream object, not the field
+        raise ImageDecodeError(f"{name}: not a readable image ({_unidentified(source)})") from error
+    except (ValueError, SyntaxError, EOFError) as error:  # malformed headers
         raise ImageDecodeError(f"{name}: not a readable image ({_reason(error)})") from error
     with image:
         width, height = image.size
@@ -76,6 +78,12 @@ def _to_rgb(image: Image.Image, name: str) -> np.ndarray:
     else:
         raise ImageDecodeError(f"{name}: unsupported pixel format {mode} (use 8 or 16 bit grey or colour)")
     return np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2))
+
+
+def _unidentified(source: bytes | str | Path) -> str:
+    if isinstance(source, bytes | bytearray | memoryview) and len(source) == 0:
+        return "empty file, 0 bytes"
+    return "unknown format; send PNG, JPEG, PPM/PGM or TIFF"
 
 
 def _reason(error: BaseException) -> str:
