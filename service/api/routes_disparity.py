@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
@@ -48,6 +48,13 @@ _ERRORS = error_responses(400, 413, 415, 503)
 
 Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 
+# Bounds of the float parameters: finite, and far beyond any real camera or cost scale, so that no value
+# overflows float32 on its way through SGM, depth (B f / d) or the point cloud.
+MAX_PENALTY = 1e6  # cost units (the default cost scale is 128)
+MAX_FOCAL_PX = 1e6
+MAX_BASELINE_M = 1e4
+MAX_PRINCIPAL_PX = 1e6
+
 
 def stereo_options(
     max_disparity: Annotated[
@@ -56,12 +63,17 @@ def stereo_options(
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
     fill: Annotated[bool, Query(description="Fill invalid pixels along rays (needs lr_check).")] = True,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
-    p1: Annotated[float | None, Query(ge=0, description="SGM small-jump penalty (default: model's).")] = None,
-    p2: Annotated[float | None, Query(ge=0, description="SGM large-jump penalty (default: model's).")] = None,
+    p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
+                                      description="SGM small-jump penalty (default: model's).")] = None,
+    p2: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
+                                      description="SGM large-jump penalty (default: model's).")] = None,
 ) -> MatchOptions:
-    return MatchOptions(
-        max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2
-    )
+    try:
+        return MatchOptions(
+            max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2
+        )
+    except ValueError as error:  # raised in a dependency it would otherwise end as a 500
+        raise HTTPException(400, str(error)) from None
 
 
 Options = Annotated[MatchOptions, Depends(stereo_options)]
@@ -136,8 +148,10 @@ async def disparity(
 async def depth(
     request: Request,
     options: Options,
-    focal_px: Annotated[float, Query(gt=0, description="Focal length in pixels.")],
-    baseline_m: Annotated[float, Query(gt=0, description="Stereo baseline in metres.")],
+    focal_px: Annotated[float, Query(gt=0, le=MAX_FOCAL_PX, allow_inf_nan=False,
+                                     description="Focal length in pixels.")],
+    baseline_m: Annotated[float, Query(gt=0, le=MAX_BASELINE_M, allow_inf_nan=False,
+                                       description="Stereo baseline in metres.")],
     format: Annotated[
         Literal["npy", "png16"] | None, Query(description="Output format; default from Accept, else npy.")
     ] = None,
@@ -166,10 +180,14 @@ async def depth(
 async def pointcloud(
     request: Request,
     options: Options,
-    focal_px: Annotated[float, Query(gt=0, description="Focal length in pixels.")],
-    baseline_m: Annotated[float, Query(gt=0, description="Stereo baseline in metres.")],
-    cx: Annotated[float | None, Query(description="Principal point x in pixels (default: centre).")] = None,
-    cy: Annotated[float | None, Query(description="Principal point y in pixels (default: centre).")] = None,
+    focal_px: Annotated[float, Query(gt=0, le=MAX_FOCAL_PX, allow_inf_nan=False,
+                                     description="Focal length in pixels.")],
+    baseline_m: Annotated[float, Query(gt=0, le=MAX_BASELINE_M, allow_inf_nan=False,
+                                       description="Stereo baseline in metres.")],
+    cx: Annotated[float | None, Query(ge=-MAX_PRINCIPAL_PX, le=MAX_PRINCIPAL_PX, allow_inf_nan=False,
+                                      description="Principal point x in pixels (default: centre).")] = None,
+    cy: Annotated[float | None, Query(ge=-MAX_PRINCIPAL_PX, le=MAX_PRINCIPAL_PX, allow_inf_nan=False,
+                                      description="Principal point y in pixels (default: centre).")] = None,
 ) -> Response:
     service = _service(request)
     match = await service.match(request, options)
