@@ -95,6 +95,13 @@ class InferenceService:
                 400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
                 f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
             )
+        width = left.shape[1]
+        if options.max_disparity is not None and options.max_disparity > width:
+            # Only the model's default range is clipped to the width; an explicit one asks for the impossible.
+            raise HTTPException(
+                400, f"max_disparity {options.max_disparity} exceeds the image width {width}: at most "
+                f"{width} disparities (0..{width - 1}) fit",
+            )
         self._check_cost_volume(left.shape[0], left.shape[1], options)
         queued = time.perf_counter()
         try:
