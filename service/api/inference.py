@@ -161,6 +161,11 @@ async def _read_pair(request: Request) -> tuple[bytes, bytes]:
         )
     form = await request.form(max_files=2, max_fields=16)
     try:
+        # A misspelt or unexpected part is refused rather than ignored: the client learns of its mistake.
+        if unexpected := sorted(set(form.keys()) - {"left", "right"}):
+            raise HTTPException(
+                400, f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and 'right'"
+            )
         parts = []
         for name in ("left", "right"):
             part = form.get(name)

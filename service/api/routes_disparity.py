@@ -35,6 +35,7 @@ _PAIR_BODY: dict[str, Any] = {
                 "schema": {
                     "type": "object",
                     "required": ["left", "right"],
+                    "additionalProperties": False,
                     "properties": {
                         "left": {"type": "string", "format": "binary", "description": "left image"},
                         "right": {"type": "string", "format": "binary", "description": "right image"},
