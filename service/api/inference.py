@@ -17,6 +17,7 @@ import numpy as np
 from fastapi import HTTPException, Request
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
+from starlette.requests import ClientDisconnect
 
 from service.api.metrics import ServiceMetrics
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
@@ -159,7 +160,10 @@ async def _read_pair(request: Request) -> tuple[bytes, bytes]:
             400, f"expected a multipart/form-data body with files 'left' and 'right', got "
             f"{content_type or 'no Content-Type'}",
         )
-    form = await request.form(max_files=2, max_fields=16)
+    try:
+        form = await request.form(max_files=2, max_fields=16)
+    except ClientDisconnect:  # gone mid-upload: nobody to answer, and not a server error
+        raise HTTPException(499, "client disconnected during the upload") from None
     try:
         # A misspelt or unexpected part is refused rather than ignored: the client learns of its mistake.
         if unexpected := sorted(set(form.keys()) - {"left", "right"}):
