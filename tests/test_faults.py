@@ -261,7 +261,8 @@ def test_disconnects_mid_upload_and_mid_inference_leak_nothing(server: Server) -
     # Mid-upload: the headers promise 100 kB, 1 kB arrives, the socket closes.
     with socket.create_connection(("127.0.0.1", server.port)) as sock:
         sock.sendall(b"POST /disparity HTTP/1.1\r\nHost: x\r\nContent-Length: 100000\r\n"
-                     b"Content-Type: multipart/form-data; boundary=b\r\n\r\n--b\r\n" + b"\0" * 1000)
+                     b"Content-Type: multipart/form-data; boundary=b\r\n\r\n--b\r\n"
+                     b'Content-Disposition: form-data; name="left"; filename="l.png"\r\n\r\n' + b"\0" * 1000)
         _until(lambda: server.metric("adsm_queue_waiting") == 1)
     _until(lambda: server.metric("adsm_queue_waiting") == 0)
 
