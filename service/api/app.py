@@ -2,7 +2,7 @@
 
 Start-up: the model folder is loaded and its hashes verified before the server accepts connections
 (a bad model fails the start, loudly); the JIT warm-up then runs in a thread while the server already
-answers /healthz, and /readyz turns 200 when it is done.
+answers /healthz, and /readyz turns 200 when it is done. SIGTERM drains (service/api/draining.py).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from starlette.staticfiles import StaticFiles
 
 import service
 from service.api import routes_disparity, routes_ops
+from service.api.draining import install_sigterm_drain
 from service.api.errors import install_error_handlers
 from service.api.inference import InferenceService
 from service.api.limits import BodySizeLimit
@@ -47,9 +48,11 @@ def create_app(settings: Settings | None = None, *, matcher: Matcher | None = No
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await run_in_threadpool(inference.load)
         warmup = asyncio.create_task(_warm(inference))
+        restore_sigterm = install_sigterm_drain(inference)
         try:
             yield
         finally:
+            restore_sigterm()
             warmup.cancel()
 
     app = FastAPI(

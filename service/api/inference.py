@@ -48,6 +48,7 @@ class InferenceService:
         self.matcher = matcher
         self.ready = False
         self.failure: str | None = None
+        self.draining = False  # SIGTERM received: admitted requests finish, new ones get 503
 
     @property
     def manifest(self) -> dict[str, Any]:
@@ -70,7 +71,17 @@ class InferenceService:
         self.metrics.ready.set(1)
         logger.info("model warmed in %.1f s; ready", time.perf_counter() - started)
 
+    def start_draining(self) -> None:
+        """Turn away new stereo requests and report not ready (see service/api/draining.py)."""
+        self.draining = True
+        self.metrics.ready.set(0)
+
     async def match(self, request: Request, options: MatchOptions) -> StereoMatch:
+        if self.draining:
+            raise HTTPException(
+                503, "the server is shutting down; retry (another instance may answer)",
+                headers={**self._warming_headers(), "Connection": "close"},
+            )
         if not self.ready:
             raise HTTPException(503, "the model is warming up", headers=self._warming_headers())
         try:

@@ -35,8 +35,10 @@ async def healthz(request: Request) -> JSONResponse:
 )
 async def readyz(request: Request) -> JSONResponse:
     service = _service(request)
-    if not service.ready:
+    if not service.ready or service.draining:
         detail = service.failure or "the model is warming up"
+        if service.draining:
+            detail = "the server is shutting down"
         return JSONResponse({"status": "not ready", "detail": detail}, status_code=503,
                             headers={"Retry-After": "5"})
     return JSONResponse({"status": "ready", "model": service.manifest.get("name")})
