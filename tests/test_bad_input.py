@@ -236,6 +236,8 @@ CATALOG = [
          params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "cx": "-inf"}),
     Case("cy not a number", 400, ("cy",), path="/pointcloud",
          params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "cy": "middle"}),
+    Case("misspelt parameter", 400, ("unknown query parameter 'max_disparty'", "max_disparity"),
+         params={"max_disparty": 16}),
     Case("unknown format", 400, ("format",), params={**VALID_QUERY, "format": "jpeg"}),
     Case("format of another route", 400, ("format",), path="/depth",
          params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "format": "pfm"}),
