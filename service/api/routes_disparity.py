@@ -7,6 +7,7 @@ from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request
+from fastapi.dependencies.models import Dependant
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
@@ -23,7 +24,24 @@ from service.api.inference import InferenceService, StereoMatch
 from service.io import encode_disparity, media_type
 from service.matcher import MatchOptions
 
-router = APIRouter(tags=["stereo"])
+
+def _query_names(dependant: Dependant) -> set[str]:
+    names = {param.alias for param in dependant.query_params}
+    for dependency in dependant.dependencies:
+        names |= _query_names(dependency)
+    return names
+
+
+def reject_unknown_query(request: Request) -> None:
+    """A misspelt parameter is refused rather than ignored (which would silently apply the default)."""
+    known = _query_names(request.scope["route"].dependant)
+    if unknown := sorted(set(request.query_params) - known):
+        raise HTTPException(
+            400, f"unknown query parameter '{unknown[0]}'; this route takes {', '.join(sorted(known))}"
+        )
+
+
+router = APIRouter(tags=["stereo"], dependencies=[Depends(reject_unknown_query)])
 
 # The request body is parsed by the service itself (admission comes before reading it), so its
 # schema is declared here for the OpenAPI page.
