@@ -159,8 +159,11 @@ async def disparity(
     openapi_extra=_PAIR_BODY,
     response_class=Response,
     responses={
-        200: _binary("application/x-npy", "npy: float32 metres, NaN invalid; png16 (image/png): uint16 "
-                     "millimetres, 0 invalid or beyond 65.535 m."),
+        200: {
+            "description": "npy: float32 metres, NaN invalid; png16 (image/png): uint16 millimetres, 0 "
+            "invalid or beyond 65.535 m.",
+            "content": {"application/x-npy": {}, "image/png": {}},
+        },
         **_ERRORS,
     },
 )
