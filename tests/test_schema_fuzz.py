@@ -21,7 +21,7 @@ from PIL import Image
 from service.api import Settings, create_app
 from service.matcher import Matcher
 
-MAX_EXAMPLES = 40
+MAX_EXAMPLES = 100
 STEREO_PATHS = ("/disparity", "/depth", "/pointcloud")
 
 
@@ -65,7 +65,7 @@ EXCLUDED = [schemathesis.checks.positive_data_acceptance]
 
 
 @schema.parametrize()
-@settings(max_examples=MAX_EXAMPLES, derandomize=True, deadline=None,
+@settings(max_examples=MAX_EXAMPLES, derandomize=True, deadline=None, database=None,
           suppress_health_check=list(HealthCheck))
 def test_no_server_error_and_no_schema_violation(case: schemathesis.Case) -> None:
     case.call_and_validate(excluded_checks=EXCLUDED)
