@@ -94,6 +94,24 @@ def test_occluded_strip_left_of_a_foreground_object_is_filled_from_the_backgroun
     np.testing.assert_array_equal(filled_validity[valid], Validity.VALID)
 
 
+def test_occlusion_takes_the_left_ray_even_when_other_rays_see_smaller_values() -> None:
+    # Background 5 to the left, foreground 9 to the right, an outlier 1 above: MC-CNN's left ray wins.
+    disparity = np.array([[5, 5, 1, 9], [5, 5, 0, 9], [5, 5, 9, 9]], np.float32)
+    validity = np.full(disparity.shape, Validity.VALID, np.uint8)
+    validity[1, 2] = Validity.OCCLUDED
+    filled, filled_validity = fill_invalid(disparity, validity)
+    assert filled[1, 2] == 5.0 and filled_validity[1, 2] == Validity.FILLED_OCCLUSION
+
+
+def test_occlusion_at_the_left_border_takes_the_right_ray() -> None:
+    disparity = np.array([[0, 0, 7, 3], [4, 4, 4, 4]], np.float32)
+    validity = np.full(disparity.shape, Validity.VALID, np.uint8)
+    validity[0, :2] = Validity.OCCLUDED  # the band the right camera never sees
+    filled, filled_validity = fill_invalid(disparity, validity)
+    np.testing.assert_array_equal(filled[0], [7, 7, 7, 3])
+    assert np.all(filled_validity[0, :2] == Validity.FILLED_OCCLUSION)
+
+
 def test_lone_mismatch_is_filled_from_its_neighbours() -> None:
     left = np.full((9, 30), 7.0, np.float32)
     left[4, 15] = 15.0

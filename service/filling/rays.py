@@ -5,11 +5,12 @@ major axis (directions as in MC-CNN: components in {0, +-0.5, +-1}) until it mee
 left-right check. Only checked-valid pixels are read, never freshly filled ones, so the result does not
 depend on the order of the pixels.
 
-- Occlusion: the smallest disparity among the rays' first valid pixels. An occluded pixel belongs to the
-  surface behind the occluder, and the background is the farthest, i.e. smallest-disparity, neighbour.
-  MC-CNN only looks along the horizontal ray to the left; the 16 rays also find the background where the
-  left ray runs into the image border or into another occluder, at the price of trusting the single
-  smallest value.
+- Occlusion: the first valid pixel on the horizontal ray to the left (MC-CNN's rule). A pixel hidden in the
+  right view lies just right of the background it belongs to, so the left ray reaches the background.
+  Where the left ray leaves the image (the band x < d along the left border, which the right camera never
+  sees) the first valid pixel on the ray to the right is used instead. Measured on Cones with the NCC
+  baseline (P1=30, P2=160, bad-2 over all ground-truth pixels): 13.19 % against 16.18 % for the smallest
+  value among the 16 rays, which trusts the single lowest, often wrong, neighbour.
 - Mismatch: the median (upper median for an even count, as MC-CNN) of the rays' first valid pixels.
 - No ray finds a valid pixel: NaN and ``Validity.NO_DATA``.
 """
@@ -33,6 +34,20 @@ _DIRECTIONS = np.array(
 )  # (dx, dy)
 
 
+@njit(inline="always")
+def _horizontal_ray(disparity, validity, y, x, step):
+    """Disparity of the first VALID pixel from (y, x) along the row in direction ``step``; -1 if none.
+
+    A negative sentinel, not NaN: the kernels are compiled with fastmath, under which isnan is folded away.
+    """
+    xx = x + step
+    while 0 <= xx < disparity.shape[1]:
+        if validity[y, xx] == VALID:
+            return disparity[y, xx]
+        xx += step
+    return np.float32(-1.0)
+
+
 @njit(parallel=True)
 def _fill_rows(disparity, validity, directions, filled, filled_validity):
     height, width = disparity.shape
@@ -41,7 +56,18 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):
         found = np.empty(rays, np.float32)
         for x in range(width):
             cause = validity[y, x]
-            if cause != OCCLUDED and cause != MISMATCH:
+            if cause == OCCLUDED:
+                value = _horizontal_ray(disparity, validity, y, x, -1)
+                if value < 0:
+                    value = _horizontal_ray(disparity, validity, y, x, 1)
+                if value < 0:
+                    filled[y, x] = np.nan
+                    filled_validity[y, x] = NO_DATA
+                else:
+                    filled[y, x] = value
+                    filled_validity[y, x] = cause | FILLED
+                continue
+            if cause != MISMATCH:
                 continue
             count = 0
             for ray in range(rays):
@@ -64,7 +90,7 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):
                 filled_validity[y, x] = NO_DATA
                 continue
             values = np.sort(found[:count])
-            filled[y, x] = values[0] if cause == OCCLUDED else values[count // 2]
+            filled[y, x] = values[count // 2]
             filled_validity[y, x] = cause | FILLED
 
 
