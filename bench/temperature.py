@@ -1,12 +1,14 @@
 """Learned vs fixed softmax temperature for L2-normalised towers: patch accuracy after a short training.
 
-    python -m bench temperature [--config 29-1deconv3-4conv] [--channels 8] [--steps 300] [--fixed 3 10 30]
+    python -m bench temperature [--config 29-1deconv3-4conv] [--channels 8] [--steps 300]
+                                [--initial 10] [--fixed 3 10 30]
 
 The towers end in an L2 normalisation, so the paper's logits (eq. 16-18) become temperature x cosine.
-This trains the same small tower from the same seed with the temperature learned (from 10) and with each
-fixed value, on 37x237-style patch pairs (eq. 19 soft labels) cut from the project's synthetic stereo
-pairs, and reports the held-out share of patches whose argmax is within 1 px of the truth. It is the
-measurement behind ``TowerPair``'s default (docs/networks.md); not a test, it takes minutes.
+This trains the same small tower from the same seed with the temperature learned (from each
+--initial) and with each fixed value, on 37x237-style patch pairs (eq. 19 soft labels) cut from the
+project's synthetic stereo pairs, and reports the held-out share of patches whose argmax is within
+1 px of the truth. It is the measurement behind ``TowerPair``'s default (docs/networks.md); not a
+test, it takes minutes.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import torch
 
 from service.datasets.synthetic import SyntheticConfig, generate
 from training.networks import build_tower_pair
+from training.networks.pair import INITIAL_TEMPERATURE
 
 CANDIDATES = 201                    # the paper's right strip: 200 px wider than the patch
 LABEL = {0: 0.5, 1: 0.2, 2: 0.05}   # eq. (19)
@@ -53,10 +56,10 @@ def soft_labels(batch: int) -> torch.Tensor:
 
 
 def train(config: str, channels: int, steps: int, fixed: float | None, data: tuple[torch.Tensor, ...],
-          batch: int = 64) -> tuple[float, float]:
-    """Held-out 1-px accuracy and the final temperature of one run."""
+          *, initial: float = INITIAL_TEMPERATURE, batch: int = 64) -> tuple[float, float]:
+    """Held-out 1-px accuracy and the final temperature of one run (learned from ``initial`` if not fixed)."""
     torch.manual_seed(0)
-    pair = build_tower_pair(config, channels=channels, temperature=fixed or 10.0,
+    pair = build_tower_pair(config, channels=channels, temperature=fixed or initial,
                             learn_temperature=fixed is None)
     optimizer = torch.optim.Adam(pair.parameters(), lr=1e-3)
     train_left, train_right, test_left, test_right = data
@@ -80,16 +83,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", default="29-1deconv3-4conv")
     parser.add_argument("--channels", type=int, default=8)
     parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--fixed", type=float, nargs="+", default=[3.0, 10.0, 30.0])
+    parser.add_argument("--fixed", type=float, nargs="*", default=[3.0, 10.0, 30.0])
+    parser.add_argument("--initial", type=float, nargs="+", default=[INITIAL_TEMPERATURE],
+                        help="starting values of the learned temperature (default: %(default)s)")
     args = parser.parse_args(argv)
     patch = build_tower_pair(args.config, channels=1).patch
     rng = np.random.default_rng(0)
     data = (*patch_pairs(range(0, 24), 4096, patch, rng), *patch_pairs(range(500, 506), 1024, patch, rng))
     print(f"{args.config}, {args.channels} channels, {args.steps} steps of 64 patch pairs (synthetic)")
-    for fixed in [None, *args.fixed]:
+    runs = [(None, initial) for initial in args.initial] + [(fixed, fixed) for fixed in args.fixed]
+    for fixed, initial in runs:
         started = time.perf_counter()
-        accuracy, temperature = train(args.config, args.channels, args.steps, fixed, data)
-        label = "learned" if fixed is None else f"fixed {fixed:g}"
-        print(f"  {label:<10} held-out 1-px accuracy {accuracy:.3f}  temperature {temperature:.2f}  "
+        accuracy, temperature = train(args.config, args.channels, args.steps, fixed, data, initial=initial)
+        label = f"learned from {initial:g}" if fixed is None else f"fixed {fixed:g}"
+        print(f"  {label:<17} held-out 1-px accuracy {accuracy:.3f}  temperature {temperature:.2f}  "
               f"({time.perf_counter() - started:.0f} s)", flush=True)
     return 0

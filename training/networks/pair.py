@@ -17,7 +17,7 @@ from torch import nn
 from training.networks.configs import get_config
 from training.networks.tower import FeatureTower
 
-INITIAL_TEMPERATURE = 10.0
+INITIAL_TEMPERATURE = 3.0  # measured: bench temperature, docs/networks.md
 
 
 class TowerPair(nn.Module):
