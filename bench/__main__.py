@@ -18,7 +18,11 @@ def _benchmarks() -> dict[str, str]:
         if module.name.startswith("_"):
             continue
         source = (Path(bench.__path__[0]) / f"{module.name}.py").read_text(encoding="utf-8")
-        docstring = ast.get_docstring(ast.parse(source)) or ""
+        tree = ast.parse(source)
+        # Helper modules (bench/peers.py) have no main(): they are not benchmarks.
+        if not any(isinstance(node, ast.FunctionDef) and node.name == "main" for node in tree.body):
+            continue
+        docstring = ast.get_docstring(tree) or ""
         found[module.name] = docstring.strip().splitlines()[0] if docstring.strip() else ""
     return found
 
