@@ -79,7 +79,7 @@ def test_a_few_dense_iterations_learn_and_write_checkpoints(tmp_path):
     assert min(losses[3:]) < losses[0]          # it learns: a random network starts near log(201)
     best = load_checkpoint(out / "best.pt")
     last = load_checkpoint(out / "last.pt")
-    assert last.step == 6 and last.training["iterations"] == 6 and last.training["finished"]
+    assert last.step == 6 and last.training["iterations"] == 6 and "finished" in last.training
     assert last.deploy["trained_range"] == [0, 24]
     assert set(best.metrics["synthetic-validation"]) >= {"bad2", "bad3", "bad4", "bad5", "epe"}
     assert last.optimizer is not None and last.rng is not None
@@ -155,3 +155,29 @@ def test_cli_rejects_bad_arguments(capsys):
     assert "--iterations" in capsys.readouterr().err
     assert main(["--data", "cones:/work/shared/data/middlebury2003-cones", "--iterations", "1"]) == 1
     assert "evaluation" in capsys.readouterr().err
+
+
+def test_warm_start_widens_a_checkpoint_almost_without_changing_its_matches(tmp_path):
+    from training.checkpoint import save_checkpoint
+    from training.trainer.warm_start import warm_start
+
+    torch.manual_seed(0)
+    narrow = build_tower_pair("37-1deconv5-4conv", channels=4, shared=True)
+    for module in narrow.modules():             # non-trivial BN statistics, as after training
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-0.1, 0.1)
+            module.running_var.uniform_(0.5, 2.0)
+    path = save_checkpoint(tmp_path / "narrow.pt", model=narrow, step=1)
+    wide = build_tower_pair("37-1deconv5-4conv", channels=8, shared=True)
+    warm_start(wide, str(path), generator=torch.Generator().manual_seed(0))
+    image = np.random.default_rng(0).integers(0, 256, (50, 70, 3), dtype=np.uint8)
+    shifted = np.ascontiguousarray(np.roll(image, 3, axis=1))
+    (fl_narrow, fr_narrow), (fl_wide, fr_wide) = (TorchTowers(m.eval())(image, shifted)
+                                                  for m in (narrow, wide))
+    cosine_narrow, cosine_wide = (fl_narrow * fr_narrow).sum(0), (fl_wide * fr_wide).sum(0)
+    assert np.abs(cosine_narrow - cosine_wide).max() < 1e-3
+    assert not np.allclose(fl_wide[4:], 0.0)                   # the new channels can grow
+    with pytest.raises(ValueError, match="narrower"):
+        warm_start(build_tower_pair("37-1deconv5-4conv", channels=2, shared=True), str(path))
+    with pytest.raises(ValueError, match="shared"):
+        warm_start(build_tower_pair("37-1deconv5-4conv", channels=8), str(path))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 
@@ -39,7 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--iterations", type=int, help="optimizer steps (dense 3000, patch 40000)")
     parser.add_argument("--batch-size", type=int, help="per process: crops (dense, 2) or patch pairs (128)")
     parser.add_argument("--channels", type=int, default=64)
-    parser.add_argument("--shared", action="store_true", help="one tower for both views")
+    parser.add_argument("--shared", action="store_true",
+                        help="one tower for both views (converges far faster: docs/training.md)")
+    parser.add_argument("--temperature", type=float, default=10.0,
+                        help="initial softmax temperature of the cosine logits (learned afterwards)")
     parser.add_argument("--out", default="runs/train")
     parser.add_argument("--resume", help="checkpoint (OUT/last.pt) to continue exactly")
     parser.add_argument("--seed", type=int, default=0, help="0..99: picks the training examples and init")
@@ -51,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
+    parser.add_argument("--init-from", metavar="CKPT",
+                        help="start from these weights (same config; more channels are filled in), with a "
+                             "fresh optimizer and schedule")
     parser.add_argument("--stop-after", type=int, metavar="STEP",
                         help="stop after this step (checkpoint written) without changing the schedule of "
                              "--iterations: a time-bounded run that --resume can continue")
@@ -67,19 +74,22 @@ def main(argv: list[str] | None = None) -> int:
         if value is not None and value < 1:
             print(f"training.train: error: --{name} must be >= 1, got {value}", file=sys.stderr)
             return 2
-    config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared, data=args.data,
+    config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared,
+                         temperature=args.temperature, data=args.data,
                          mode=args.mode, iterations=args.iterations or defaults["iterations"],
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
-                         threads=args.threads, stop_after=args.stop_after, command=command)
+                         threads=args.threads, stop_after=args.stop_after,
+                         init_from=args.init_from, command=command)
     try:
         summary = train(config, resume=args.resume)
     except (OSError, ValueError) as error:
         print(f"training.train: error: {error}", file=sys.stderr)
         return 1
-    print(json.dumps({k: v for k, v in summary.items() if k != "metrics"}))
+    if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports
+        print(json.dumps({k: v for k, v in summary.items() if k != "metrics"}))
     return 0
 
 

@@ -35,6 +35,7 @@ class BatchSpec:
     max_disparity: int = 96        # synthetic scenes only: nearest surface
     patches_per_pair: int = 32     # patch mode: patch pairs cut from each generated pair
     augmentation: str = "photometric"
+    nonoccluded_only: bool = True  # an occluded pixel has no match to learn (where the data set says so)
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
@@ -75,7 +76,8 @@ class TrainingData:
         crops = []
         for index in indices:
             sample, rng = self.sample(index)
-            crop = random_crop(sample, rng, height=self.spec.height, width=self.spec.width)
+            crop = random_crop(sample, rng, height=self.spec.height, width=self.spec.width,
+                               nonoccluded_only=self.spec.nonoccluded_only)
             crops.append(self._augment(crop, rng))
         return (torch.stack([c.left for c in crops]), torch.stack([c.right for c in crops]),
                 torch.stack([c.disparity for c in crops]))
@@ -85,7 +87,8 @@ class TrainingData:
         parts = []
         for index in indices:
             sample, rng = self.sample(index)
-            pairs = random_patch_pairs(sample, rng, count=self.spec.patches_per_pair)
+            pairs = random_patch_pairs(sample, rng, count=self.spec.patches_per_pair,
+                                       nonoccluded_only=self.spec.nonoccluded_only)
             left, right = self._photometric(pairs.left, pairs.right, rng)
             parts.append(dataclasses.replace(pairs, left=left, right=right))
         return PatchPairs(*(torch.cat([getattr(p, f.name) for p in parts])

@@ -12,6 +12,7 @@ import dataclasses
 import json
 import os
 import time
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from training.networks import build_tower_pair
 from training.schedule import learning_rate
 from training.trainer.batches import BatchSpec, TrainingData
 from training.trainer.objective import Objective
+from training.trainer.warm_start import warm_start
 from training.validate import CONES, DEFAULT_DEPLOY, runtime_metrics
 
 SELECTION_METRIC = ("synthetic-validation", "bad2")   # best.pt: lowest synthetic bad-2 (never Cones)
@@ -36,6 +38,7 @@ class TrainConfig:
     config: str = "37-1deconv5-4conv"
     channels: int = 64
     shared: bool = False
+    temperature: float = 10.0           # initial softmax temperature (learned afterwards)
     data: str = "synthetic"
     mode: str = "dense"
     iterations: int = 1000
@@ -52,6 +55,7 @@ class TrainConfig:
     cones: str = CONES                  # evaluation only; "" skips it
     out: str = "runs/train"
     threads: int | None = None
+    init_from: str | None = None        # warm start (weights only, widened if needed); not with resume
     stop_after: int | None = None       # stop (validate + checkpoint) after this step, as if interrupted
     command: str = ""
 
@@ -83,10 +87,13 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     data = TrainingData(config.data, seed=config.seed, spec=spec)
     examples_per_step = 4 if config.mode == "patch" else config.batch_size
 
-    model = build_tower_pair(config.config, channels=config.channels, shared=config.shared)
+    model = build_tower_pair(config.config, channels=config.channels, shared=config.shared,
+                             temperature=config.temperature)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)
     step, wall_before, best = 0, 0.0, None
+    if config.init_from and not resume:
+        warm_start(model, config.init_from)
     if resume:
         checkpoint = load_checkpoint(resume)
         model.load_state_dict(checkpoint.state_dict)
@@ -166,8 +173,9 @@ def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: 
           deploy: dict[str, Any], wall: float, best: float, data: TrainingData, improved: bool) -> None:
     training = {"command": config.command, "data": _describe_data(config, data),
                 "wall_time_s": round(wall, 1), "iterations": step,
-                "device": f"cpu ({torch.get_num_threads()} threads)",
-                "finished": step >= config.iterations}
+                "device": f"cpu ({torch.get_num_threads()} threads)"}
+    if step >= config.iterations:  # the schedule ran to its end (not stopped early)
+        training["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
     recorded = {**dataclasses.asdict(config), "best": best, "selection": "/".join(SELECTION_METRIC)}
     save_checkpoint(out / "last.pt", model=model, step=step, optimizer=optimizer, metrics=metrics,
                     training=training, config=recorded, deploy=deploy)
