@@ -69,6 +69,30 @@ class StereoResult:
     timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
 
 
+# Largest image the towers run on at once. ONNX Runtime's arena keeps the buffers of the largest run
+# (int8 convs: ~1-2 KB per pixel), so larger images go through the towers in row strips that overlap by
+# half the receptive field: exact features, ~10 % more tower work at KITTI size (2 strips), half the
+# arena (adsm-paper-int8 at 375x1242: Matcher peak RSS 1847 -> see docs/performance.md).
+TOWER_STRIP_PIXELS = 256 * 1024
+
+
+def tower_strips(height: int, width: int, halo: int) -> list[tuple[int, int, int, int]]:
+    """Row strips ``(run_top, run_bottom, keep_top, keep_bottom)`` covering ``height`` rows.
+
+    The towers run on rows ``run_top:run_bottom``; rows ``keep_top:keep_bottom`` of the image are kept,
+    each at least ``halo`` rows from a strip edge that is not an image edge, so its receptive field lies
+    inside the strip and its features equal those of the whole image.
+    """
+    core = max(TOWER_STRIP_PIXELS // max(width, 1), 2 * halo + 1)
+    count = -(-height // core)
+    core = -(-height // count)  # equal strips
+    strips = []
+    for keep_top in range(0, height, core):
+        keep_bottom = min(keep_top + core, height)
+        strips.append((max(keep_top - halo, 0), min(keep_bottom + halo, height), keep_top, keep_bottom))
+    return strips
+
+
 def _check_images(left: Any, right: Any) -> None:
     for side, image in (("left", left), ("right", right)):
         expected = f"{side} image must be a uint8 array of shape (H, W, 3)"
@@ -110,6 +134,21 @@ class Matcher:
         jit.warmup()
         self.towers.warmup()
 
+    def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tower features of both views, in row strips when the image is larger than the strip budget."""
+        height, width = left.shape[:2]
+        strips = tower_strips(height, width, int(self.manifest["receptive_field"]) // 2)
+        if len(strips) == 1:
+            return self.towers(left, right)
+        channels = int(self.manifest["channels"])
+        features = (np.empty((channels, height, width), np.float32), np.empty((channels, height, width),
+                                                                              np.float32))
+        for run_top, run_bottom, keep_top, keep_bottom in strips:
+            strip = self.towers(left[run_top:run_bottom], right[run_top:run_bottom])
+            for whole, part in zip(features, strip, strict=True):
+                whole[:, keep_top:keep_bottom] = part[:, keep_top - run_top : keep_bottom - run_top]
+        return features
+
     def __call__(
         self, left: np.ndarray, right: np.ndarray, options: MatchOptions | None = None
     ) -> StereoResult:
@@ -133,7 +172,7 @@ class Matcher:
             timings[stage] = now - clock
             clock = now
 
-        left_features, right_features = self.towers(left, right)
+        left_features, right_features = self._features(left, right)
         lap("towers")
         scale = float(self.manifest["cost"]["scale"])
         volume = cost_volume(left_features, right_features, disparities, scale=scale)

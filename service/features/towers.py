@@ -43,6 +43,20 @@ def _pick_providers(requested: Sequence[str] | None) -> list[str]:
     return [*picked, "CPUExecutionProvider"]
 
 
+_shared_arena = False
+
+
+def _register_shared_arena() -> None:
+    """Register one CPU arena in ONNX Runtime's environment (once per process) for every session."""
+    global _shared_arena
+    if _shared_arena:
+        return
+    memory = ort.OrtMemoryInfo("Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT)
+    # max_mem 0 and -1: ORT's defaults (no limit, next-power-of-two extension, its chunk sizes).
+    ort.create_and_register_allocator(memory, ort.OrtArenaCfg(0, -1, -1, -1))
+    _shared_arena = True
+
+
 class FeatureTowers:
     """Left and right feature towers of one model folder.
 
@@ -73,14 +87,16 @@ class FeatureTowers:
         options.inter_op_num_threads = 1
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        # Memory: ORT's pattern planner and CPU arena keep every intermediate of the largest image seen
-        # (~0.7-1.6 GB at 375x1242) after a run, on top of the two cost volumes that follow. Without the
-        # pattern and with the arena shrunk after each run, a KITTI-size Matcher call peaks at ~1.26 GB
-        # instead of ~2.6 GB (python -m bench runtime). The price: the next run page-faults its buffers
-        # in again, ~0.2 s per KITTI-size pair on 2 cores (the pattern alone costs nothing, saves ~0.9 GB).
+        # Memory: ORT's pattern planner and a CPU arena per session keep every intermediate of the largest
+        # image seen twice over (~2.4 GB for adsm-fast-int8 at 375x1242). Shrinking the arena after each
+        # run kept the peak low but page-faulted ~1 GB back in on every call (0.45 s of system time on
+        # 2 cores). Instead both towers share one process-wide arena (they run one after the other) and
+        # the pattern planner is off, so the arena holds one tower run's buffers and is reused without
+        # faults: adsm-fast-int8 towers 1.48 -> 0.84 CPU s, peak 769 -> 676 MiB (python -m bench suite).
         options.enable_mem_pattern = False
+        options.add_session_config_entry("session.use_env_allocators", "1")
+        _register_shared_arena()
         self._run_options = ort.RunOptions()
-        self._run_options.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
         chosen = _pick_providers(providers)
         self._sessions = {}
         for name in TOWER_FILES:

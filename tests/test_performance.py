@@ -1,0 +1,56 @@
+"""Speed-driven code paths (issue 6): tower row strips, the shared ORT arena, warm-up coverage.
+
+Each path must give the same answer as the simple one it replaces; speed itself is measured by
+``python -m bench suite``, not here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service import matcher as matcher_module
+from service.features import FeatureTowers, default_model_dir
+from service.matcher import Matcher, MatchOptions, tower_strips
+
+
+@pytest.mark.parametrize(
+    ("height", "width", "halo"), [(375, 1242, 18), (1, 5, 4), (50, 20000, 4), (97, 3000, 0)]
+)
+def test_tower_strips_cover_every_row_once_with_halo(monkeypatch, height, width, halo):
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 20_000)
+    strips = tower_strips(height, width, halo)
+    kept = np.zeros(height, int)
+    for run_top, run_bottom, keep_top, keep_bottom in strips:
+        kept[keep_top:keep_bottom] += 1
+        assert 0 <= run_top <= keep_top < keep_bottom <= run_bottom <= height
+        # Every kept row is `halo` rows inside its strip, unless the strip edge is the image edge.
+        assert keep_top - run_top >= halo or run_top == 0
+        assert run_bottom - keep_bottom >= halo or run_bottom == height
+    assert (kept == 1).all()
+
+
+def test_strip_features_equal_whole_image_features(monkeypatch):
+    matcher = Matcher.from_folder(threads=2)
+    rng = np.random.default_rng(3)
+    left, right = (rng.integers(0, 256, (61, 80, 3), dtype=np.uint8) for _ in range(2))
+    whole = matcher.towers(left, right)
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 15 * 80)  # 15-row strips: 5 strips + halo
+    assert len(tower_strips(61, 80, int(matcher.manifest["receptive_field"]) // 2)) == 5
+    strips = matcher._features(left, right)
+    for a, b in zip(whole, strips, strict=True):
+        np.testing.assert_allclose(b, a, atol=1e-5)
+    result = matcher(left, right, MatchOptions(max_disparity=16))
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 10**9)
+    reference = matcher(left, right, MatchOptions(max_disparity=16))
+    np.testing.assert_array_equal(result.validity, reference.validity)
+    np.testing.assert_allclose(result.disparity, reference.disparity, atol=1e-3, equal_nan=True)
+
+
+def test_two_tower_pairs_share_the_arena_and_agree():
+    """The process-wide arena is registered once; a second FeatureTowers reuses it and gives equal output."""
+    first = FeatureTowers(default_model_dir(), threads=1)
+    second = FeatureTowers(default_model_dir(), threads=2)
+    image = np.random.default_rng(4).integers(0, 256, (40, 56, 3), dtype=np.uint8)
+    for a, b in zip(first(image, image), second(image, image), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-5)
