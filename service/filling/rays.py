@@ -81,7 +81,14 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):
                     if xx < 0 or xx >= width or yy < 0 or yy >= height:
                         break
                     if validity[yy, xx] == VALID:
-                        found[count] = disparity[yy, xx]
+                        # Insertion into the sorted prefix: at most 16 values, and no np.sort allocation per
+                        # pixel (that allocation was most of this kernel's time on mismatch-heavy maps).
+                        value = disparity[yy, xx]
+                        slot = count
+                        while slot > 0 and found[slot - 1] > value:
+                            found[slot] = found[slot - 1]
+                            slot -= 1
+                        found[slot] = value
                         count += 1
                         break
                     step += 1
@@ -89,8 +96,7 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):
                 filled[y, x] = np.nan
                 filled_validity[y, x] = NO_DATA
                 continue
-            values = np.sort(found[:count])
-            filled[y, x] = values[count // 2]
+            filled[y, x] = found[count // 2]
             filled_validity[y, x] = cause | FILLED
 
 
