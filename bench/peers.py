@@ -119,26 +119,56 @@ def _weight_shape(model, name: str, weights: dict[str, tuple[int, ...]]) -> tupl
     raise ValueError(f"cannot find the shape of conv weight {name!r}")
 
 
-def reference_conv_gflops(channels: int, height: int, width: int, *, threads: int, repeats: int) -> float:
-    """GFLOP/s of one fp32 ``channels -> channels`` 11x11 valid conv in ONNX Runtime (towers' settings)."""
+class _RandomFeeds:
+    """Calibration reader for the int8 reference conv (ONNX Runtime's CalibrationDataReader protocol)."""
+
+    def __init__(self, shape: tuple[int, ...]) -> None:
+        feeds = [{"x": np.random.default_rng(i).random(shape, dtype=np.float32)} for i in range(2)]
+        self._feeds = iter(feeds)
+
+    def get_next(self) -> dict[str, np.ndarray] | None:
+        return next(self._feeds, None)
+
+
+def reference_conv_gflops(channels: int, height: int, width: int, *, precision: str, threads: int,
+                          repeats: int) -> float:
+    """GFLOP/s of one ``channels -> channels`` 11x11 valid conv in ONNX Runtime with the towers' settings.
+
+    ``precision`` "int8" quantises it as export/quantize.py does a tower (QDQ, per-channel int8 weights,
+    uint8 activations), so an int8 tower reads against an int8 conv of its own channel count.
+    """
+    import tempfile
+
+    import onnx
     import onnxruntime as ort
     from onnx import TensorProto, helper, numpy_helper
 
     rng = np.random.default_rng(0)
     weight = rng.standard_normal((channels, channels, REFERENCE_KERNEL, REFERENCE_KERNEL)).astype(np.float32)
+    shape = (1, channels, height, width)
     graph = helper.make_graph(
         [helper.make_node("Conv", ["x", "w"], ["y"])], "reference",
-        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, channels, height, width])],
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, list(shape))],
         [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
         [numpy_helper.from_array(weight, "w")],
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
-    image = rng.standard_normal((1, channels, height, width)).astype(np.float32)
+    with tempfile.TemporaryDirectory(prefix="adsm-bench-reference-") as scratch:
+        path = Path(scratch) / "reference.onnx"
+        onnx.save(model, path)
+        if precision == "int8":
+            from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+
+            quantized = Path(scratch) / "reference-int8.onnx"
+            quantize_static(path, quantized, _RandomFeeds(shape), quant_format=QuantFormat.QDQ,
+                            per_channel=True, activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8)
+            path = quantized
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads
+        options.inter_op_num_threads = 1
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    image = rng.random(shape, dtype=np.float32)
     wall, _ = median_seconds(lambda: session.run(None, {"x": image}), repeats)
     out_pixels = (height - REFERENCE_KERNEL + 1) * (width - REFERENCE_KERNEL + 1)
     return 2 * out_pixels * channels * channels * REFERENCE_KERNEL**2 / wall / 1e9
