@@ -47,6 +47,7 @@ class TorchTowers:
         deploy = {**DEFAULT_DEPLOY, **(deploy or {})}
         self.model = model
         self.manifest = {"name": f"torch-{model.config.name}-{model.channels}", "channels": model.channels,
+                         "receptive_field": model.receptive_field,
                          "input": deploy["input"], "cost": {"scale": float(deploy["cost_scale"])},
                          "sgm": {"p1": float(deploy["p1"]), "p2": float(deploy["p2"])},
                          "disparity": {"default_max": int(deploy["default_max"])}}

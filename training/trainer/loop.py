@@ -176,12 +176,23 @@ def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: 
                 "device": f"cpu ({torch.get_num_threads()} threads)"}
     if step >= config.iterations:  # the schedule ran to its end (not stopped early)
         training["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
+    if config.init_from:
+        training |= warm_start_provenance(config.init_from, wall)
     recorded = {**dataclasses.asdict(config), "best": best, "selection": "/".join(SELECTION_METRIC)}
     save_checkpoint(out / "last.pt", model=model, step=step, optimizer=optimizer, metrics=metrics,
                     training=training, config=recorded, deploy=deploy)
     if improved:
         save_checkpoint(out / "best.pt", model=model, step=step, optimizer=optimizer, metrics=metrics,
                         training=training, config=recorded, deploy=deploy)
+
+
+def warm_start_provenance(init_from: str, wall: float) -> dict[str, Any]:
+    """What a warm-started model owes to its starting checkpoint: the chain of commands, the total time."""
+    earlier = load_checkpoint(init_from).training or {}
+    previous = {key: earlier[key] for key in ("command", "data", "wall_time_s", "iterations", "warm_start")
+                if key in earlier}
+    total = wall + float(earlier.get("wall_time_total_s", earlier.get("wall_time_s", 0.0)))
+    return {"warm_start": {"checkpoint": init_from, **previous}, "wall_time_total_s": round(total, 1)}
 
 
 def _describe_data(config: TrainConfig, data: TrainingData) -> str:
