@@ -54,3 +54,30 @@ def test_two_tower_pairs_share_the_arena_and_agree():
     image = np.random.default_rng(4).integers(0, 256, (40, 56, 3), dtype=np.uint8)
     for a, b in zip(first(image, image), second(image, image), strict=True):
         np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+def _compiled_specialisations() -> int:
+    import sys
+
+    import numba
+
+    return sum(
+        len(value.signatures)
+        for name, module in list(sys.modules.items())
+        if name.startswith("service.") and module is not None
+        for value in vars(module).values()
+        if isinstance(value, numba.core.registry.CPUDispatcher)
+    )
+
+
+def test_warmup_leaves_nothing_to_compile_on_the_request_path():
+    """After Matcher.warmup(), no option combination or image size compiles a Numba kernel."""
+    matcher = Matcher.from_folder(threads=2)
+    matcher.warmup()
+    compiled = _compiled_specialisations()
+    rng = np.random.default_rng(5)
+    left, right = (rng.integers(0, 256, (37, 53, 3), dtype=np.uint8) for _ in range(2))
+    for options in (MatchOptions(max_disparity=12), MatchOptions(sgm=False, subpixel=False),
+                    MatchOptions(lr_check=False, fill=False), MatchOptions(fill=False, p1=0, p2=0)):
+        matcher(left, right, options)
+    assert _compiled_specialisations() == compiled
