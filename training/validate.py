@@ -117,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", type=int, default=20, help="synthetic validation pairs (default 20)")
     parser.add_argument("--tune", action="store_true",
                         help="grid P1/P2 on the synthetic split, store the best in the checkpoint's deploy")
+    parser.add_argument("--p1", type=float, nargs="+", default=P1_GRID, help="P1 grid for --tune")
+    parser.add_argument("--p2", type=float, nargs="+", default=P2_GRID, help="P2 grid for --tune")
     parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args(argv)
@@ -126,10 +128,10 @@ def main(argv: list[str] | None = None) -> int:
     deploy = {**DEFAULT_DEPLOY, **checkpoint.deploy}
     synthetic = open_dataset(f"synthetic:{args.pairs}")
     if args.tune:
-        best, rows = tune_sgm(model, synthetic, deploy=deploy, log=print)
+        best, rows = tune_sgm(model, synthetic, deploy=deploy, p1_grid=args.p1, p2_grid=args.p2, log=print)
         grid = Path(f"{args.checkpoint}.sgm-grid.json")
         grid.write_text(json.dumps(rows, indent=1) + "\n")
-        deploy |= best | {"sgm_tuned_on": f"grid P1 {list(P1_GRID)} x P2 {list(P2_GRID)}, lowest bad-2 on "
+        deploy |= best | {"sgm_tuned_on": f"grid P1 {list(args.p1)} x P2 {list(args.p2)}, lowest bad-2 on "
                                            f"the synthetic validation split ({args.pairs} pairs)"}
     metrics = dict(checkpoint.metrics)
     metrics["synthetic-validation"] = runtime_metrics(model, synthetic, deploy=deploy)
