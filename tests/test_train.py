@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -181,3 +182,35 @@ def test_warm_start_widens_a_checkpoint_almost_without_changing_its_matches(tmp_
         warm_start(build_tower_pair("37-1deconv5-4conv", channels=2, shared=True), str(path))
     with pytest.raises(ValueError, match="shared"):
         warm_start(build_tower_pair("37-1deconv5-4conv", channels=8), str(path))
+
+
+SHIPPED = Path(__file__).resolve().parents[1] / "service" / "models"
+TRAINED = ("adsm-fast", "adsm-fast-int8", "adsm-paper", "adsm-paper-int8")
+
+
+@pytest.mark.parametrize("name", TRAINED)
+def test_shipped_trained_models_record_their_training(name):
+    from service.features.manifest import load_manifest, verify_files
+
+    folder = SHIPPED / name
+    manifest = load_manifest(folder)
+    verify_files(folder, manifest)
+    assert sum(f.stat().st_size for f in folder.iterdir()) < 20 * 2**20
+    assert manifest["config"] == "37-1deconv5-4conv"
+    assert manifest["channels"] == (16 if name.startswith("adsm-fast") else 64)
+    assert manifest["training"]["command"].startswith("python -m training.train")
+    assert manifest["training"]["wall_time_s"] > 0 and manifest["training"]["iterations"] > 0
+    assert "synthetic" in manifest["sgm"]["tuned_on"]
+    assert {"synthetic-validation", "middlebury2003-cones"} <= set(manifest["metrics"])
+    assert manifest["onnx"]["precision"] == ("int8" if name.endswith("int8") else "fp32")
+
+
+@pytest.mark.slow
+def test_shipped_trained_models_beat_the_ncc_baseline_on_cones():
+    from service.evaluation.evaluate import evaluate
+    from service.matcher import Matcher
+
+    cones = open_dataset("cones:/work/shared/data/middlebury2003-cones")
+    bad2 = {name: evaluate(Matcher.from_folder(SHIPPED / name), cones, max_disparity=64)["all"]["bad2"]
+            for name in ("ncc-baseline", *TRAINED)}
+    assert all(bad2[name] < bad2["ncc-baseline"] for name in TRAINED), bad2

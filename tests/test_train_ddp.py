@@ -11,7 +11,7 @@ import torch
 
 from training.checkpoint import load_checkpoint
 from training.networks import build_tower_pair
-from training.trainer import BatchSpec, TrainingData
+from training.trainer import BatchSpec, TrainConfig, TrainingData
 from training.trainer.objective import Objective
 
 
@@ -30,7 +30,8 @@ def test_two_processes_average_their_losses_and_share_one_model(tmp_path):
     # Step 1 from the same initial weights: rank 0 trains on examples 0-1, rank 1 on examples 2-3; the
     # logged loss is their mean, and the logged example count their sum.
     torch.manual_seed(0)
-    objective = Objective(build_tower_pair("37-1deconv5-4conv", channels=4), mode="dense")
+    model = build_tower_pair("37-1deconv5-4conv", channels=4, temperature=TrainConfig().temperature)
+    objective = Objective(model, mode="dense")
     data = TrainingData("synthetic", seed=0, spec=BatchSpec(height=48, width=96, max_disparity=24))
     with torch.no_grad():
         per_rank = [objective(*data.crops(indices)) for indices in ([0, 1], [2, 3])]
