@@ -39,8 +39,8 @@ NORM_EPS = 1e-6
 COST_SCALE = 128.0
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
 DEFAULT_WINDOW = 9
-SGM_P1 = 180.0
-SGM_P2 = 640.0
+SGM_P1 = 65.0
+SGM_P2 = 360.0
 DEFAULT_MAX_DISPARITY = 128
 
 
@@ -149,24 +149,25 @@ def build_folder(
     return write_manifest(out, manifest)
 
 
-# The measurement that chose DEFAULT_WINDOW, SGM_P1 and SGM_P2: synthetic pairs from the project's
-# generator (seeds from TUNING_SEED, far from the validation split), never a real pair with ground truth.
+# The measurement that chose DEFAULT_WINDOW: synthetic pairs from the project's generator (seeds from
+# TUNING_SEED, far from the validation split), never a real pair with ground truth. SGM_P1 and SGM_P2 are
+# then chosen by the rule every shipped model follows (service.evaluation.tuning).
 TUNING_SEED = 700_000_000
 WINDOWS = (5, 7, 9, 11, 13)
 PAPER_PENALTIES = (30.0, 160.0)  # the window is chosen at the paper's P1, P2, then the penalties at it
-PENALTIES = tuple(
-    (p1, p2) for p1 in (15.0, 30.0, 60.0, 90.0, 120.0, 180.0) for p2 in (160.0, 320.0, 480.0, 640.0, 960.0)
-)
 # Cost-volume work grows with w^2, so a larger window must beat a smaller one by more than this (bad-2, %).
 WINDOW_MARGIN = 0.5
 
 
 def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparity: int = 96) -> dict:
-    """Mean bad-1/bad-2 (%) on non-occluded pixels for each window at the paper's penalties, then for each
-    (P1, P2) at the chosen window: the smallest within WINDOW_MARGIN of the best; then the lowest bad-2."""
+    """Mean bad-1/bad-2 (%) on non-occluded pixels for each window at the paper's penalties, the smallest
+    window within WINDOW_MARGIN of the best; then P1, P2 at that window by the shared tuning rule
+    (:func:`service.evaluation.tuning.tune_penalties` on the synthetic validation split)."""
     import tempfile
 
+    from service.datasets import open_dataset
     from service.datasets.synthetic import SyntheticConfig, generate
+    from service.evaluation.tuning import TUNING_DATA, tune_penalties
     from service.matcher import Matcher, MatchOptions
 
     config = SyntheticConfig(height=height, width=width, max_disparity=max_disparity * 3 // 4)
@@ -194,10 +195,11 @@ def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparit
         lowest = min(row["bad2"] for row in table["windows"].values())
         best = min(w for w in WINDOWS if table["windows"][w]["bad2"] <= lowest + WINDOW_MARGIN)
         matcher = Matcher.from_folder(build_folder(Path(scratch) / "best", window=best).parent)
-        for p1, p2 in PENALTIES:
-            table["penalties"].append(score(matcher, p1, p2))
-            print(f"window {best}: {table['penalties'][-1]}", file=sys.stderr)
-    chosen = min(table["penalties"], key=lambda row: row["bad2"])
+        def log(row: str) -> None:
+            print(f"window {best}: {row}", file=sys.stderr)
+
+        chosen, table["penalties"] = tune_penalties(matcher, open_dataset(TUNING_DATA), log=log)
+    table["penalties_on"] = f"{TUNING_DATA} (the validation split), all ground-truth pixels, bad-2"
     table["choice"] = {"window": best, "p1": chosen["p1"], "p2": chosen["p2"]}
     return table
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import itertools
 import json
 import sys
 from collections.abc import Mapping, Sequence
@@ -24,17 +23,16 @@ import torch
 
 from service.datasets import StereoSample, open_dataset
 from service.evaluation.evaluate import evaluate
-from service.matcher import Matcher, MatchOptions
+from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
+from service.matcher import Matcher
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.networks import TowerPair, dense_features
 
 DEFAULT_DEPLOY = {"cost_scale": 128.0, "p1": 30.0, "p2": 160.0, "default_max": 128,
                   "input": {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0],
                             "std": [1.0, 1.0, 1.0]}}
-# Only P1 / scale and P2 / scale change SGM's winners, so the scale stays at 128 and the penalties move.
-P1_GRID = (10.0, 20.0, 30.0, 45.0, 65.0)
-P2_GRID = (80.0, 160.0, 240.0, 360.0, 540.0)
-CONES = "cones:/work/shared/data/middlebury2003-cones"
+# The evaluation-only real pair, beside the checkout as in CI (../shared next to the repository).
+CONES = "cones:" + str(Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones")
 
 
 class TorchTowers:
@@ -95,20 +93,9 @@ def runtime_metrics(model: TowerPair, dataset: Sequence[StereoSample], *,
 def tune_sgm(model: TowerPair, dataset: Sequence[StereoSample], *, deploy: Mapping[str, Any] | None = None,
              p1_grid: Sequence[float] = P1_GRID, p2_grid: Sequence[float] = P2_GRID,
              log: Any = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
-    """The (P1, P2) of the grid with the lowest bad-2 on ``dataset`` (EPE breaks ties), and every row."""
+    """:func:`service.evaluation.tuning.tune_penalties` with the PyTorch towers, run once per pair."""
     towers = TorchTowers(model, deploy, cache=len(dataset))
-    matcher = Matcher(towers)
-    rows = []
-    for p1, p2 in itertools.product(p1_grid, p2_grid):
-        if p2 < p1:
-            continue
-        report = evaluate(matcher, dataset, options=MatchOptions(p1=p1, p2=p2))
-        rows.append({"p1": p1, "p2": p2, "bad2": report["all"]["bad2"], "bad3": report["all"]["bad3"],
-                     "epe": report["all"]["epe"]})
-        if log is not None:
-            log(json.dumps(rows[-1]))
-    best = min(rows, key=lambda row: (row["bad2"], row["epe"]))
-    return {"p1": best["p1"], "p2": best["p2"]}, rows
+    return tune_penalties(Matcher(towers), dataset, p1_grid=p1_grid, p2_grid=p2_grid, log=log)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,50 @@
+"""SGM penalty tuning: the one rule by which every shipped model's P1 and P2 are chosen.
+
+A grid of (P1, P2) runs through the runtime's own Matcher on the fixed synthetic validation split
+(``synthetic:20``; never on a real pair with ground truth), and the pair with the lowest bad-2 over every
+ground-truth pixel wins, EPE breaking ties. Trained models (``python -m training.validate --tune``) and
+the NCC baseline (``python -m export.baseline --measure``) use this same function, so "a trained model
+beats the baseline" compares models tuned alike.
+
+Only P1 / scale and P2 / scale change SGM's winners, so the cost scale stays at the contract's 128 and
+the penalties move.
+
+>>> choice, rows = tune_penalties(matcher, open_dataset("synthetic:20"))
+>>> choice
+{'p1': 30.0, 'p2': 160.0}
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from service.datasets import StereoSample
+from service.matcher import MatchOptions
+
+from .evaluate import StereoFunction, evaluate
+
+P1_GRID = (10.0, 20.0, 30.0, 45.0, 65.0)
+P2_GRID = (80.0, 160.0, 240.0, 360.0, 540.0)
+TUNING_DATA = "synthetic:20"
+
+
+def tune_penalties(matcher: StereoFunction, dataset: Sequence[StereoSample], *,
+                   p1_grid: Sequence[float] = P1_GRID, p2_grid: Sequence[float] = P2_GRID,
+                   log: Callable[[str], Any] | None = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """The (P1, P2) of the grid (P2 >= P1) with the lowest all-pixel bad-2 on ``dataset``, and every row."""
+    rows = []
+    for p1, p2 in itertools.product(p1_grid, p2_grid):
+        if p2 < p1:
+            continue
+        report = evaluate(matcher, dataset, options=MatchOptions(p1=p1, p2=p2))
+        rows.append({"p1": p1, "p2": p2, "bad2": report["all"]["bad2"], "bad3": report["all"]["bad3"],
+                     "epe": report["all"]["epe"]})
+        if log is not None:
+            log(json.dumps(rows[-1]))
+    if not rows:
+        raise ValueError("the P1/P2 grid has no pair with P2 >= P1")
+    best = min(rows, key=lambda row: (row["bad2"], row["epe"]))
+    return {"p1": best["p1"], "p2": best["p2"]}, rows
