@@ -30,13 +30,17 @@ def test_tower_strips_cover_every_row_once_with_halo(monkeypatch, height, width,
     assert (kept == 1).all()
 
 
-def test_strip_features_equal_whole_image_features(monkeypatch):
-    matcher = Matcher.from_folder(threads=2)
+@pytest.mark.parametrize("model", ["ncc-baseline", "default"])
+def test_strip_features_equal_whole_image_features(monkeypatch, model):
+    folder = None if model == "default" else default_model_dir().parent / model
+    matcher = Matcher.from_folder(folder, threads=2)
+    halo = int(matcher.manifest["receptive_field"]) // 2
+    height, width = 4 * (2 * halo + 1) + 3, 40  # strips of the smallest core (2 * halo + 1 rows): 5 of them
     rng = np.random.default_rng(3)
-    left, right = (rng.integers(0, 256, (61, 80, 3), dtype=np.uint8) for _ in range(2))
+    left, right = (rng.integers(0, 256, (height, width, 3), dtype=np.uint8) for _ in range(2))
     whole = matcher.towers(left, right)
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 15 * 80)  # 15-row strips: 5 strips + halo
-    assert len(tower_strips(61, 80, int(matcher.manifest["receptive_field"]) // 2)) == 5
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", width)  # forces the smallest strips
+    assert len(tower_strips(height, width, halo)) == 5
     strips = matcher._features(left, right)
     for a, b in zip(whole, strips, strict=True):
         np.testing.assert_allclose(b, a, atol=1e-5)
