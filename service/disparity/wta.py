@@ -14,19 +14,24 @@ from numba import prange
 from service.jit import njit
 
 
+@njit(inline="always")
+def _argmin(costs):
+    """Index of the smallest cost; the smallest index on ties (strict <)."""
+    best = 0
+    best_cost = costs[0]
+    for d in range(1, costs.shape[0]):
+        if costs[d] < best_cost:
+            best_cost = costs[d]
+            best = d
+    return best
+
+
 @njit(parallel=True)
 def _winners(volume, left):
-    height, width, disparities = volume.shape
+    height, width, _ = volume.shape
     for y in prange(height):
         for x in range(width):
-            costs = volume[y, x]
-            best = 0
-            best_cost = costs[0]
-            for d in range(1, disparities):
-                if costs[d] < best_cost:
-                    best_cost = costs[d]
-                    best = d
-            left[y, x] = best
+            left[y, x] = _argmin(volume[y, x])
 
 
 @njit(parallel=True)
@@ -36,13 +41,7 @@ def _left_right_winners(volume, left, right):
         right_best = np.empty(width, np.float32)
         for x in range(width):
             costs = volume[y, x]
-            best = 0
-            best_cost = costs[0]
-            for d in range(1, disparities):
-                if costs[d] < best_cost:
-                    best_cost = costs[d]
-                    best = d
-            left[y, x] = best
+            left[y, x] = _argmin(costs)
             # Right pixel x is first seen here (d = 0); later x reach it with growing d, so a strict <
             # keeps the smallest d on ties.
             right_best[x] = costs[0]
