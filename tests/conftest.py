@@ -1,9 +1,11 @@
-"""Shared fixtures: a throw-away Numba cache for the test session and unit-norm random feature maps."""
+"""Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+from collections.abc import AsyncIterator
 
 import numpy as np
 import pytest
@@ -21,3 +23,18 @@ def unit_features(rng: np.random.Generator, channels: int, height: int, width: i
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
+
+
+@contextlib.asynccontextmanager
+async def ready_client(app, *, timeout: float = 120) -> AsyncIterator:
+    """An httpx client of ``app`` in-process, inside its lifespan, once ``/readyz`` answers 200."""
+    import anyio
+    import httpx
+
+    async with app.router.lifespan_context(app):
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://test", timeout=60) as client:
+            with anyio.fail_after(timeout):
+                while (await client.get("/readyz")).status_code != 200:
+                    await anyio.sleep(0.05)
+            yield client

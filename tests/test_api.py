@@ -11,6 +11,7 @@ import zlib
 import httpx
 import numpy as np
 import pytest
+from conftest import ready_client
 from PIL import Image
 
 from service.api import Settings, create_app
@@ -51,22 +52,8 @@ def anyio_backend() -> str:
 
 @pytest.fixture(scope="module")
 async def client():
-    app = create_app(SETTINGS)
-    async with app.router.lifespan_context(app):
-        transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://test", timeout=60) as client:
-            await _wait_ready(client)
-            yield client
-
-
-async def _wait_ready(client: httpx.AsyncClient) -> None:
-    import anyio
-
-    for _ in range(1200):
-        if (await client.get("/readyz")).status_code == 200:
-            return
-        await anyio.sleep(0.05)
-    raise AssertionError("the service did not become ready within 60 s")
+    async with ready_client(create_app(SETTINGS)) as client:
+        yield client
 
 
 def stage_names(response: httpx.Response) -> list[str]:

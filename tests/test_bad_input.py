@@ -17,6 +17,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from conftest import ready_client
 from PIL import Image
 
 from service.api import Settings, create_app
@@ -257,15 +258,8 @@ def anyio_backend() -> str:
 @pytest.fixture(scope="module")
 async def app_client():
     app = create_app(SETTINGS)
-    async with app.router.lifespan_context(app):
-        transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://test", timeout=60) as client:
-            import anyio
-
-            with anyio.fail_after(120):
-                while (await client.get("/readyz")).status_code != 200:
-                    await anyio.sleep(0.05)
-            yield app, client
+    async with ready_client(app) as client:
+        yield app, client
 
 
 def test_catalog_is_large_enough() -> None:
