@@ -206,22 +206,22 @@ def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparit
 
 def evaluate(folder: Path, pairs_folder: Path) -> dict:
     """bad-2, bad-3 (%) and EPE of the model folder on each pair of a Middlebury-style folder (all pixels
-    with ground truth, and the non-occluded ones), the runtime's defaults, D = the dataset's range."""
+    with ground truth, and the non-occluded ones), the runtime's defaults, D = the dataset's range; the
+    figures of ``adsm eval`` (service.evaluation), rounded for the manifest."""
     from service.datasets.readers import cones
-    from service.matcher import Matcher, MatchOptions
+    from service.evaluation.evaluate import evaluate as run
+    from service.matcher import Matcher
 
     matcher, metrics = Matcher.from_folder(folder), {}
-    for sample in cones(pairs_folder):
-        result = matcher(sample.left, sample.right, MatchOptions(max_disparity=sample.max_disparity))
-        row = {"max_disparity": sample.max_disparity, "seconds": round(result.timings["total"], 3)}
-        known = np.isfinite(sample.disparity)
-        for suffix, mask in (("", known), ("_nonocc", known & sample.nonoccluded)):
-            error = np.abs(result.disparity[mask] - sample.disparity[mask])
-            error[np.isnan(error)] = np.inf  # an unfilled pixel counts as wrong
-            row[f"bad2{suffix}"] = round(100 * float((error > 2).mean()), 2)
-            row[f"bad3{suffix}"] = round(100 * float((error > 3).mean()), 2)
-            row[f"epe{suffix}"] = round(float(error[np.isfinite(error)].mean()), 3)
-        metrics[sample.name] = row
+    matcher.warmup()  # seconds without JIT compilation, as adsm eval reports them
+    for pair in run(matcher, cones(pairs_folder))["per_pair"]:
+        row = {"max_disparity": pair["max_disparity"], "seconds": round(pair["seconds"], 3)}
+        for suffix, figures in (("", pair["all"]), ("_nonocc", pair["nonoccluded"])):
+            if figures is not None:
+                row[f"bad2{suffix}"] = round(figures["bad2"], 2)
+                row[f"bad3{suffix}"] = round(figures["bad3"], 2)
+                row[f"epe{suffix}"] = round(figures["epe"], 3)
+        metrics[pair["name"]] = row
     return metrics
 
 
