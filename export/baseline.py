@@ -167,6 +167,7 @@ def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparit
 
     from service.datasets import open_dataset
     from service.datasets.synthetic import SyntheticConfig, generate
+    from service.evaluation import count_errors
     from service.evaluation.tuning import TUNING_DATA, tune_penalties
     from service.matcher import Matcher, MatchOptions
 
@@ -178,11 +179,9 @@ def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparit
         for sample in samples:
             options = MatchOptions(max_disparity=max_disparity, p1=p1, p2=p2)
             disparity = matcher(sample.left, sample.right, options).disparity
-            mask = sample.nonoccluded & np.isfinite(sample.disparity)
-            error = np.abs(disparity[mask] - sample.disparity[mask])
-            error[np.isnan(error)] = np.inf
-            bad1.append(100 * float((error > 1).mean()))
-            bad2.append(100 * float((error > 2).mean()))
+            figures = count_errors(disparity, sample.disparity, sample.nonoccluded).summary()
+            bad1.append(figures["bad1"])
+            bad2.append(figures["bad2"])
         return {"p1": p1, "p2": p2, "bad1": round(sum(bad1) / pairs, 2), "bad2": round(sum(bad2) / pairs, 2)}
 
     table: dict = {"pairs": f"synthetic seeds {TUNING_SEED}..{TUNING_SEED + pairs - 1}, {height}x{width}, "
