@@ -58,11 +58,16 @@ def opencv_sgbm(left: np.ndarray, right: np.ndarray, disparities: int, *, thread
 
 
 def libsgm_aggregate(volume: np.ndarray, *, p1: float, p2: float, repeats: int) -> dict[str, float] | None:
-    """CNES libsgm's 8-path aggregation of an (H, W, D) float32 volume; None when it is not installed."""
+    """CNES libsgm's 8-path aggregation of an (H, W, D) volume; None when it is not installed.
+
+    libsgm takes float32 only, so our int16 volume is widened for it (outside the timed call): the
+    comparison is libsgm on float32 against ours on int16, each in its own native cost type.
+    """
     try:
         import c_libsgm
     except ImportError:
         return None
+    volume = volume.astype(np.float32)
     height, width, _ = volume.shape
     paths = len(LIBSGM_DIRECTIONS)
     p1_map = np.full((height, width, paths), p1, np.float32)

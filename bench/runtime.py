@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from service import jit
-from service.cost import cost_volume
+from service.cost import COST_DTYPE, cost_volume
 from service.disparity import left_right_winners
 from service.filling import fill_invalid
 from service.optimization import aggregate
@@ -90,8 +90,8 @@ def _median_times(run: Callable[[], dict[str, float]], repeats: int) -> dict[str
 def time_stages(left: np.ndarray, right: np.ndarray, disparities: int, repeats: int) -> dict[str, float]:
     """Median seconds of each stage, with the manifest-default penalties of the paper (P1 30, P2 160)."""
     shape = (left.shape[1], left.shape[2], disparities)
-    raw = np.empty(shape, np.float32)
-    aggregated = np.empty(shape, np.float32)
+    raw = np.empty(shape, COST_DTYPE)
+    aggregated = np.empty(shape, COST_DTYPE)
 
     def run() -> dict[str, float]:
         times = {}

@@ -112,7 +112,7 @@ def baseline_manifest(
             "scale": COST_SCALE,
             "definition": "CL[y, x, d] = -scale * NCC(window_L(y, x), window_R(y, x - d)); "
             "x - d < 0 -> +scale",
-            "dtype": "float32",
+            "dtype": "int16",
         },
         "sgm": {
             "p1": p1,

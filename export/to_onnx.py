@@ -146,7 +146,7 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
         "receptive_field": model.receptive_field,
         "shared_towers": model.shared,
         "input": deploy["input"],
-        "cost": {"scale": float(deploy["cost_scale"]), "dtype": "float32",
+        "cost": {"scale": float(deploy["cost_scale"]), "dtype": "int16",
                  "definition": "CL[y, x, d] = -scale * <FL[:, y, x], FR[:, y, x - d]> (features "
                                "L2-normalised over C); x - d < 0 -> +scale"},
         "sgm": sgm,

@@ -70,8 +70,8 @@ def warmup() -> None:
 
     rng = np.random.default_rng(0)
     features = rng.standard_normal((2, 3, 4, 5)).astype(np.float32)
-    cost = cost_volume(features[0], features[1], 3, scale=1.0)
-    volume = aggregate(cost, p1=0.1, p2=0.5)
+    cost = cost_volume(features[0], features[1], 3, scale=128.0)
+    volume = aggregate(cost, p1=30.0, p2=160.0)
     winner_takes_all(volume)
     left, right = left_right_winners(volume)
     disparity = refine_subpixel(volume, left)

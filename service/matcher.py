@@ -4,9 +4,10 @@
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
-:class:`MatchOptions`. Peak memory is about two cost volumes (``H * W * D * 8`` bytes): the raw and the
-aggregated volume are the only volume-sized arrays, and the features are dropped as soon as the cost
-volume exists.
+:class:`MatchOptions`. Peak memory is about two int16 cost volumes (``H * W * D * 4`` bytes): the raw
+and the aggregated volume are the only volume-sized arrays, and the features are dropped as soon as the
+cost volume exists. Both volumes live in a :class:`~service.cost.VolumeWorkspace` kept between calls
+(``reuse_volumes=False`` allocates them per call instead; see that module for the measurement).
 """
 
 from __future__ import annotations
@@ -21,11 +22,11 @@ from typing import Any
 import numpy as np
 
 from service import jit
-from service.cost import cost_volume
+from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, default_model_dir
 from service.filling import fill_invalid
-from service.optimization import aggregate
+from service.optimization import MAX_PENALTY, aggregate
 from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
 
@@ -37,7 +38,7 @@ class MatchOptions:
     """Per-call settings; ``None`` takes the model manifest's value. Raises ValueError when out of range."""
 
     max_disparity: int | None = None  # None -> manifest disparity.default_max; clipped to the image width
-    p1: float | None = None  # None -> manifest sgm.p1 (cost units, see cost.scale)
+    p1: float | None = None  # None -> manifest sgm.p1 (whole cost units, see cost.scale; <= MAX_PENALTY)
     p2: float | None = None  # None -> manifest sgm.p2
     sgm: bool = True
     subpixel: bool = True
@@ -54,9 +55,9 @@ class MatchOptions:
             value = getattr(self, name)
             if value is not None and (
                 isinstance(value, bool) or not isinstance(value, int | float | np.number)
-                or not math.isfinite(value) or value < 0
+                or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+                raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
         for name in ("sgm", "subpixel", "lr_check", "fill"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
@@ -109,12 +110,15 @@ def _check_images(left: Any, right: Any) -> None:
 class Matcher:
     """Stereo matcher of one model folder. Not thread-safe: run one call at a time per instance."""
 
-    def __init__(self, towers: FeatureTowers, *, threads: int | None = None) -> None:
+    def __init__(
+        self, towers: FeatureTowers, *, threads: int | None = None, reuse_volumes: bool = True
+    ) -> None:
         if threads is not None and threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.towers = towers
         self.threads = threads
         self.manifest: dict[str, Any] = towers.manifest
+        self.workspace = VolumeWorkspace() if reuse_volumes else None
 
     @classmethod
     def from_folder(
@@ -123,10 +127,12 @@ class Matcher:
         *,
         threads: int | None = None,
         providers: Sequence[str] | None = None,
+        reuse_volumes: bool = True,
     ) -> Matcher:
         """Load (and sha256-verify) a model folder; ``None`` is the default shipped model."""
         folder = default_model_dir() if folder is None else Path(folder)
-        return cls(FeatureTowers(folder, threads=threads, providers=providers), threads=threads)
+        towers = FeatureTowers(folder, threads=threads, providers=providers)
+        return cls(towers, threads=threads, reuse_volumes=reuse_volumes)
 
     def warmup(self) -> None:
         """Compile or load every Numba kernel and run the towers once, so the first request is fast."""
@@ -175,11 +181,13 @@ class Matcher:
         left_features, right_features = self._features(left, right)
         lap("towers")
         scale = float(self.manifest["cost"]["scale"])
-        volume = cost_volume(left_features, right_features, disparities, scale=scale)
+        shape = (left.shape[0], width, disparities)
+        raw, aggregated = (None, None) if self.workspace is None else self.workspace.volumes(shape)
+        volume = cost_volume(left_features, right_features, disparities, scale=scale, out=raw)
         del left_features, right_features
         lap("cost_volume")
         if options.sgm:
-            volume = aggregate(volume, p1=p1, p2=p2)  # the raw volume is freed on rebinding
+            volume = aggregate(volume, p1=p1, p2=p2, out=aggregated)
         lap("sgm")
         if options.lr_check:
             winners, right_winners = left_right_winners(volume)
@@ -191,7 +199,7 @@ class Matcher:
             lap("subpixel")
         else:
             disparity = winners.astype(np.float32)
-        del volume
+        del volume, raw, aggregated
         if options.lr_check:
             validity = inner_check(disparity, right_winners, disparities)
             lap("lr_check")

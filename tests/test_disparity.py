@@ -23,7 +23,7 @@ def naive_right_winners(volume: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("shape", [(6, 17, 5), (3, 4, 9), (1, 1, 1), (2, 9, 1)])
 def test_winners_match_numpy(rng, shape: tuple[int, int, int]) -> None:
     # Integer costs make ties frequent: both must keep the smallest disparity, as argmin does.
-    volume = rng.integers(0, 4, shape).astype(np.float32)
+    volume = rng.integers(0, 4, shape).astype(np.int16)
     left, right = left_right_winners(volume)
     np.testing.assert_array_equal(left, volume.argmin(axis=2))
     np.testing.assert_array_equal(winner_takes_all(volume), volume.argmin(axis=2))
@@ -34,13 +34,14 @@ def test_subpixel_recovers_a_parabola_minimum(rng) -> None:
     height, width, disparities = 4, 6, 12
     minimum = rng.uniform(1.0, disparities - 2.0, (height, width)).astype(np.float32)
     d = np.arange(disparities, dtype=np.float32)
-    volume = (3.0 * (d - minimum[..., None]) ** 2 - 50.0).astype(np.float32)
+    # Steep enough that rounding to int16 cost units moves the vertex by < 0.005 px.
+    volume = np.rint(200.0 * (d - minimum[..., None]) ** 2 - 5000.0).astype(np.int16)
     refined = refine_subpixel(volume, winner_takes_all(volume))
-    np.testing.assert_allclose(refined, minimum, atol=1e-3)
+    np.testing.assert_allclose(refined, minimum, atol=5e-3)
 
 
 def test_subpixel_keeps_integers_without_both_neighbours_or_curvature() -> None:
-    volume = np.array([[[0.0, 1.0, 2.0], [2.0, 1.0, 0.0], [1.0, 1.0, 1.0], [5.0, 0.0, 0.0]]], np.float32)
+    volume = np.array([[[0, 1, 2], [2, 1, 0], [1, 1, 1], [5, 0, 0]]], np.int16)
     winners = np.array([[0, 2, 1, 1]], np.int32)
     # Last pixel: a tie between 1 and 2 puts the vertex half-way.
     np.testing.assert_array_equal(refine_subpixel(volume, winners), [[0.0, 2.0, 1.0, 1.5]])
@@ -48,7 +49,7 @@ def test_subpixel_keeps_integers_without_both_neighbours_or_curvature() -> None:
 
 def test_subpixel_offset_is_clamped_to_half_a_pixel() -> None:
     # A winner that is not the minimum (cost rising to the left) would move by more than 0.5.
-    volume = np.array([[[0.0, 1.0, 10.0]]], np.float32)
+    volume = np.array([[[0, 1, 10]]], np.int16)
     assert refine_subpixel(volume, np.array([[1]], np.int32))[0, 0] == pytest.approx(0.5)
 
 
@@ -154,6 +155,10 @@ def test_rejects_mismatched_shapes() -> None:
     with pytest.raises(ValueError):
         fill_invalid(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.uint8))
     with pytest.raises(ValueError):
-        refine_subpixel(np.zeros((2, 3, 4), np.float32), np.zeros((2, 3), np.int32) + 4)
+        refine_subpixel(np.zeros((2, 3, 4), np.int16), np.zeros((2, 3), np.int32) + 4)
+    with pytest.raises(ValueError, match="int16"):
+        refine_subpixel(np.zeros((2, 3, 4), np.float32), np.zeros((2, 3), np.int32))
     with pytest.raises(ValueError):
-        winner_takes_all(np.zeros((2, 3), np.float32))
+        winner_takes_all(np.zeros((2, 3), np.int16))
+    with pytest.raises(ValueError, match="int16"):
+        left_right_winners(np.zeros((2, 3, 4), np.float32))

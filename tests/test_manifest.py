@@ -65,6 +65,8 @@ def _broken() -> list[tuple[str, dict]]:
     case("scale", lambda m: m["cost"].update(scale=0))
     case("paths", lambda m: m["sgm"].update(paths=8))
     case("p1 negative", lambda m: m["sgm"].update(p1=-1))
+    case("p2 above the int16 SGM bound", lambda m: m["sgm"].update(p2=4097))
+    case("scale above the int16 cost bound", lambda m: m["cost"].update(scale=1025))
     case("sha pattern", lambda m: m["files"]["left.onnx"].update(sha256="XYZ"))
     case("file missing", lambda m: m["files"].pop("right.onnx"))
     case("training type", lambda m: m.update(training="none"))

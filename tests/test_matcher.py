@@ -112,6 +112,7 @@ def test_rejects_bad_images(matcher: Matcher, left, right, message: str) -> None
         ({"p1": -1.0}, "p1"),
         ({"p2": float("inf")}, "p2"),
         ({"p2": "160"}, "p2"),
+        ({"p2": 4097.0}, "p2"),
         ({"fill": "yes"}, "fill"),
     ],
 )
@@ -134,3 +135,19 @@ def test_bad_model_folder_raises_model_error(tmp_path) -> None:
 def test_rejects_bad_threads() -> None:
     with pytest.raises(ValueError, match="threads"):
         Matcher.from_folder(threads=0)
+
+
+def test_reused_volumes_give_the_same_results_as_fresh_ones(matcher: Matcher) -> None:
+    kept_matcher = Matcher(matcher.towers, threads=2)
+    fresh = Matcher(matcher.towers, threads=2, reuse_volumes=False)
+    assert fresh.workspace is None
+    # Growing, shrinking and growing again: every view of the kept buffers is written before it is read.
+    for height, width, disparities in [(24, 40, 8), (40, 64, 16), (16, 32, 4), (40, 64, 16)]:
+        left, right, _, _ = slanted_plane_pair(height=height, width=width, seed=height)
+        options = MatchOptions(max_disparity=disparities)
+        kept, new = kept_matcher(left, right, options), fresh(left, right, options)
+        np.testing.assert_array_equal(kept.disparity, new.disparity)
+        np.testing.assert_array_equal(kept.validity, new.validity)
+    assert kept_matcher.workspace.nbytes == 2 * 2 * 40 * 64 * 16  # two int16 volumes of the largest call
+    kept_matcher.workspace.release()
+    assert kept_matcher.workspace.nbytes == 0

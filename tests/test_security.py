@@ -15,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 import yaml
+from conftest import ready_client
 from PIL import Image
 
 from service.api import Settings, create_app
@@ -160,13 +161,11 @@ async def test_pickles_uploaded_as_images_are_never_unpickled(tmp_path: Path) ->
         "npy of objects": _npy_of_objects(marker),
     }
     app = create_app(Settings(), matcher=_InstantMatcher())
-    async with app.router.lifespan_context(app):
-        client = await _client(app)
-        async with client:
-            for kind, payload in payloads.items():
-                files = {"left": ("l.npy", payload, "application/octet-stream"), "right": PAIR["right"]}
-                response = await client.post("/disparity", files=files)
-                assert response.status_code == 415, (kind, response.text)
+    async with ready_client(app) as client:
+        for kind, payload in payloads.items():
+            files = {"left": ("l.npy", payload, "application/octet-stream"), "right": PAIR["right"]}
+            response = await client.post("/disparity", files=files)
+            assert response.status_code == 415, (kind, response.text)
     assert not marker.exists()
 
 
@@ -226,18 +225,16 @@ async def test_metrics_expose_no_request_data() -> None:
              "right": (f"{SECRET}-r.png", _png(), "image/png")}
     headers = {"X-Request-ID": SECRET, "User-Agent": SECRET, "Cookie": f"session={SECRET}",
                "Authorization": f"Bearer {SECRET}"}
-    async with app.router.lifespan_context(app):
-        client = await _client(app)
-        async with client:
-            assert (await client.post("/disparity", files=files, headers=headers)).status_code == 200
-            await client.post("/disparity", params={SECRET: "1"}, files=files, headers=headers)
-            await client.post("/disparity", params={"max_disparity": SECRET}, files=files)
-            await client.post("/disparity", files={"left": (SECRET, SECRET.encode()), "right": PAIR["right"]})
-            await client.post("/disparity", content=SECRET.encode() * 10_000)
-            await client.get(f"/{SECRET}")
-            await client.get(f"/static/{SECRET}.js")
-            await client.request("DELETE", f"/disparity?{SECRET}=1")
-            text = (await client.get("/metrics")).text
+    async with ready_client(app) as client:
+        assert (await client.post("/disparity", files=files, headers=headers)).status_code == 200
+        await client.post("/disparity", params={SECRET: "1"}, files=files, headers=headers)
+        await client.post("/disparity", params={"max_disparity": SECRET}, files=files)
+        await client.post("/disparity", files={"left": (SECRET, SECRET.encode()), "right": PAIR["right"]})
+        await client.post("/disparity", content=SECRET.encode() * 10_000)
+        await client.get(f"/{SECRET}")
+        await client.get(f"/static/{SECRET}.js")
+        await client.request("DELETE", f"/disparity?{SECRET}=1")
+        text = (await client.get("/metrics")).text
     assert SECRET not in text
     routes = set(re.findall(r'route="([^"]*)"', text))
     assert routes <= {"/disparity", "/depth", "/pointcloud", "/healthz", "/readyz", "/metrics", "/v1/model",
@@ -249,11 +246,9 @@ async def test_metrics_expose_no_request_data() -> None:
 @pytest.mark.anyio
 async def test_a_crash_reveals_no_internals() -> None:
     app = create_app(Settings(), matcher=_InstantMatcher(RuntimeError(f"boom in /secret/{SECRET}.py")))
-    async with app.router.lifespan_context(app):
-        client = await _client(app)
-        async with client:
-            response = await client.post("/disparity", files=PAIR)
-            assert (await client.get("/healthz")).status_code == 200  # still up
+    async with ready_client(app) as client:
+        response = await client.post("/disparity", files=PAIR)
+        assert (await client.get("/healthz")).status_code == 200  # still up
     assert response.status_code == 500
     assert response.json() == {"detail": f"internal error (request {response.headers['x-request-id']})"}
     assert SECRET not in response.text

@@ -1,4 +1,5 @@
-"""Numba SGM against the NumPy reference, on random volumes and edge shapes."""
+"""Numba SGM against the NumPy reference, on random int16 volumes and edge shapes: equal, not close,
+because integer costs and penalties make every path cost an exact integer."""
 
 from __future__ import annotations
 
@@ -15,12 +16,12 @@ from reference_sgm import reference_sgm
 
 from service.optimization import aggregate
 
-SCALE = 128.0
+SCALE = 128
 SERVICE_DIR = Path(__file__).resolve().parent.parent / "service"
 
 
 def _random_cost(shape: tuple[int, int, int], seed: int) -> np.ndarray:
-    return np.random.default_rng(seed).uniform(-SCALE, SCALE, shape).astype(np.float32)
+    return np.random.default_rng(seed).integers(-SCALE, SCALE, shape, endpoint=True).astype(np.int16)
 
 
 @pytest.mark.parametrize(
@@ -34,30 +35,29 @@ def test_matches_reference(shape: tuple[int, int, int], p1: float, p2: float) ->
     cost = _random_cost(shape, seed=sum(shape))
     expected = reference_sgm(cost, p1, p2)
     result = aggregate(cost, p1=p1, p2=p2)
-    assert result.shape == shape and result.dtype == np.float32
-    # float32 runtime vs float64 reference: relative 1e-4 of the volume's magnitude.
-    np.testing.assert_allclose(result, expected, rtol=1e-4, atol=1e-4 * np.abs(expected).max())
+    assert result.shape == shape and result.dtype == np.int16
+    np.testing.assert_array_equal(result, expected)
 
 
 def test_wide_column_blocks_match_reference() -> None:
     # More columns than one vertical task holds, and a ragged last block.
     cost = _random_cost((6, 75, 4), seed=3)
     expected = reference_sgm(cost, 30, 160)
-    np.testing.assert_allclose(aggregate(cost, p1=30, p2=160), expected, rtol=1e-4, atol=0.05)
+    np.testing.assert_array_equal(aggregate(cost, p1=30, p2=160), expected)
 
 
 def test_first_pixel_of_every_path_is_its_cost() -> None:
     # A single pixel is the first pixel of all 4 paths: the sum is 4 C.
     cost = _random_cost((1, 1, 5), seed=1)
-    np.testing.assert_allclose(aggregate(cost, p1=30, p2=160), 4 * cost, rtol=1e-6)
+    np.testing.assert_array_equal(aggregate(cost, p1=30, p2=160), 4 * cost.astype(np.int32))
 
 
 def test_smooths_a_noisy_winner() -> None:
     # A constant-disparity scene with one pixel whose raw minimum is wrong: SGM restores the majority.
-    cost = np.full((9, 9, 8), 50.0, np.float32)
-    cost[:, :, 3] = -50.0
-    cost[4, 4, 3] = 60.0
-    cost[4, 4, 6] = 40.0
+    cost = np.full((9, 9, 8), 50, np.int16)
+    cost[:, :, 3] = -50
+    cost[4, 4, 3] = 60
+    cost[4, 4, 6] = 40
     assert cost[4, 4].argmin() != 3
     assert aggregate(cost, p1=30, p2=160)[4, 4].argmin() == 3
 
@@ -68,9 +68,30 @@ def test_out_argument_is_used() -> None:
     assert aggregate(cost, p1=30, p2=160, out=out) is out
 
 
+def test_penalties_are_whole_cost_units() -> None:
+    cost = _random_cost((5, 6, 7), seed=4)
+    np.testing.assert_array_equal(aggregate(cost, p1=29.6, p2=160.4), aggregate(cost, p1=30, p2=160))
+
+
+def test_largest_costs_and_penalties_stay_inside_int16() -> None:
+    # |C| = 1024 (the largest cost scale) and P2 = 4096 (the largest penalty): no wrap-around.
+    rng = np.random.default_rng(5)
+    cost = rng.choice(np.array([-1024, 1024], np.int16), (12, 15, 6))
+    result = aggregate(cost, p1=4096, p2=4096)
+    np.testing.assert_array_equal(result, reference_sgm(cost, 4096, 4096))
+    assert np.abs(result).max() <= 4 * (1024 + 4096)
+
+
+def test_sums_saturate_instead_of_wrapping() -> None:
+    # Out-of-contract costs (beyond the largest scale) clip at the int16 bounds rather than flip sign.
+    cost = np.full((3, 3, 2), 30000, np.int16)
+    assert aggregate(cost, p1=0, p2=0).min() == 32767
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
-    [({"p1": -1.0, "p2": 1.0}, "p1"), ({"p1": 1.0, "p2": float("nan")}, "p2")],
+    [({"p1": -1.0, "p2": 1.0}, "p1"), ({"p1": 1.0, "p2": float("nan")}, "p2"),
+     ({"p1": 1.0, "p2": 4097}, "p2")],
 )
 def test_rejects_bad_penalties(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
@@ -79,9 +100,11 @@ def test_rejects_bad_penalties(kwargs: dict, message: str) -> None:
 
 def test_rejects_bad_shapes() -> None:
     with pytest.raises(ValueError, match="cost volume"):
-        aggregate(np.zeros((3, 4), np.float32), p1=1, p2=2)
+        aggregate(np.zeros((3, 4), np.int16), p1=1, p2=2)
+    with pytest.raises(ValueError, match="int16"):
+        aggregate(np.zeros((3, 4, 2), np.float32), p1=1, p2=2)
     with pytest.raises(ValueError, match="out"):
-        aggregate(np.zeros((3, 4, 2), np.float32), p1=1, p2=2, out=np.zeros((3, 4, 3), np.float32))
+        aggregate(np.zeros((3, 4, 2), np.int16), p1=1, p2=2, out=np.zeros((3, 4, 3), np.int16))
 
 
 def _python(code: str, **env: str) -> str:
@@ -104,7 +127,7 @@ def test_jit_cache_works_from_a_read_only_package(tmp_path: Path) -> None:
     cache = tmp_path / "numba-cache"
     code = (
         "import numpy as np; from service import jit; from service.optimization import aggregate; "
-        "aggregate(np.ones((2, 3, 4), np.float32), p1=1.0, p2=2.0); print(jit.CACHE_DIR)"
+        "aggregate(np.ones((2, 3, 4), np.int16), p1=1.0, p2=2.0); print(jit.CACHE_DIR)"
     )
     try:
         printed = _python(

@@ -23,6 +23,7 @@ from service.api.errors import error_responses
 from service.api.inference import InferenceService, StereoMatch
 from service.io import encode_disparity, media_type
 from service.matcher import MatchOptions
+from service.optimization import MAX_PENALTY
 
 
 def _query_names(dependant: Dependant) -> set[str]:
@@ -67,9 +68,9 @@ _ERRORS = error_responses(400, 413, 415, 503)
 
 Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 
-# Bounds of the float parameters: finite, and far beyond any real camera or cost scale, so that no value
-# overflows float32 on its way through SGM, depth (B f / d) or the point cloud.
-MAX_PENALTY = 1e6  # cost units (the default cost scale is 128)
+# Bounds of the float parameters: finite, and far beyond any real camera, so that no value overflows
+# float32 on its way through depth (B f / d) or the point cloud. The SGM penalties' bound is SGM's own
+# (service.optimization.MAX_PENALTY, 4096 cost units: 32 times the shipped cost scale).
 MAX_FOCAL_PX = 1e6
 MAX_BASELINE_M = 1e4
 MAX_PRINCIPAL_PX = 1e6

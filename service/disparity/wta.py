@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from service.cost import COST_DTYPE
 from service.jit import njit
 
 
@@ -38,7 +39,7 @@ def _winners(volume, left):
 def _left_right_winners(volume, left, right):
     height, width, disparities = volume.shape
     for y in prange(height):
-        right_best = np.empty(width, np.float32)
+        right_best = np.empty(width, volume.dtype)
         for x in range(width):
             costs = volume[y, x]
             left[y, x] = _argmin(costs)
@@ -55,7 +56,9 @@ def _left_right_winners(volume, left, right):
 def _check(volume: np.ndarray) -> np.ndarray:
     if volume.ndim != 3 or min(volume.shape) < 1:
         raise ValueError(f"cost volume must be a non-empty (H, W, D) array, got shape {volume.shape}")
-    return np.ascontiguousarray(volume, dtype=np.float32)
+    if volume.dtype != COST_DTYPE:
+        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
+    return np.ascontiguousarray(volume)
 
 
 def winner_takes_all(volume: np.ndarray) -> np.ndarray:

@@ -157,6 +157,8 @@ def _check(value: Any, node: dict[str, Any], root: dict[str, Any], where: str) -
             return f"{where} must be >= {node['minimum']}, got {value}"
         if "exclusiveMinimum" in node and value <= node["exclusiveMinimum"]:
             return f"{where} must be > {node['exclusiveMinimum']}, got {value}"
+        if "maximum" in node and value > node["maximum"]:
+            return f"{where} must be <= {node['maximum']}, got {value}"
     if isinstance(value, str) and "pattern" in node and not re.search(node["pattern"], value):
         return f"{where} must match {node['pattern']}, got {value!r:.60}"
     if isinstance(value, list):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
+from service.cost import COST_DTYPE
 from service.jit import njit
 
 
@@ -22,21 +23,23 @@ def _refine_rows(volume, winners, refined):
             d = winners[y, x]
             refined[y, x] = d
             if 0 < d < disparities - 1:
-                before = volume[y, x, d - 1]
-                after = volume[y, x, d + 1]
-                curvature = before - 2.0 * volume[y, x, d] + after
+                before = np.float32(volume[y, x, d - 1])
+                after = np.float32(volume[y, x, d + 1])
+                curvature = before - np.float32(2.0) * np.float32(volume[y, x, d]) + after
                 if curvature > 0.0:
-                    offset = (before - after) / (2.0 * curvature)
-                    refined[y, x] = d + min(0.5, max(-0.5, offset))
+                    offset = (before - after) / (np.float32(2.0) * curvature)
+                    refined[y, x] = d + min(np.float32(0.5), max(np.float32(-0.5), offset))
 
 
 def refine_subpixel(volume: np.ndarray, winners: np.ndarray) -> np.ndarray:
-    """float32 HxW sub-pixel disparities from an ``(H, W, D)`` cost volume and its int HxW winners."""
+    """float32 HxW sub-pixel disparities from an int16 ``(H, W, D)`` cost volume and its int HxW winners."""
     if volume.ndim != 3 or winners.shape != volume.shape[:2]:
         raise ValueError(f"winners {winners.shape} do not match the cost volume {volume.shape}")
+    if volume.dtype != COST_DTYPE:
+        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
     winners = np.ascontiguousarray(winners, dtype=np.int32)
     if winners.size and (winners.min() < 0 or winners.max() >= volume.shape[2]):
         raise ValueError(f"winners must lie in [0, {volume.shape[2] - 1}]")
     refined = np.empty(winners.shape, np.float32)
-    _refine_rows(np.ascontiguousarray(volume, dtype=np.float32), winners, refined)
+    _refine_rows(np.ascontiguousarray(volume), winners, refined)
     return refined
