@@ -99,7 +99,7 @@ async def test_openapi_documents_the_error_rule(client: httpx.AsyncClient) -> No
     )
     for path in ("/disparity", "/depth", "/pointcloud"):
         operation = schema["paths"][path]["post"]
-        assert set(operation["responses"]) == {"200", "400", "413", "415", "503"}
+        assert set(operation["responses"]) == {"200", "400", "408", "413", "415", "503"}
         assert "multipart/form-data" in operation["requestBody"]["content"]
     assert "422" in DESCRIPTION  # the folding of 422 into 400 is stated on the docs page
     docs = await client.get("/docs")

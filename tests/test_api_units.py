@@ -20,10 +20,12 @@ def test_settings_from_env() -> None:
     settings = Settings.from_env({
         "ADSM_MODEL_DIR": "/models/x", "ADSM_THREADS": "3", "ADSM_QUEUE_SIZE": "0",
         "ADSM_MAX_BODY_BYTES": "1_000_000", "ADSM_MAX_PIXELS": "", "ADSM_WARMUP": "off",
+        "ADSM_BODY_TIMEOUT_S": "2.5",
     })
     assert settings.model_dir == Path("/models/x") and settings.threads == 3 and settings.queue_size == 0
     assert settings.max_body_bytes == 1_000_000 and settings.max_pixels == Settings().max_pixels
-    assert settings.warmup is False
+    assert settings.warmup is False and settings.body_timeout_s == 2.5
+    assert Settings().body_timeout_s == 30.0
 
 
 @pytest.mark.parametrize(
@@ -34,11 +36,22 @@ def test_settings_from_env() -> None:
         ({"ADSM_MAX_PIXELS": "0"}, "max_pixels must be >= 1"),
         ({"ADSM_QUEUE_SIZE": "-1"}, "queue_size must be >= 0"),
         ({"ADSM_THREADS": "0"}, "threads must be >= 1"),
+        ({"ADSM_BODY_TIMEOUT_S": "soon"}, "ADSM_BODY_TIMEOUT_S must be a number"),
+        ({"ADSM_BODY_TIMEOUT_S": "0"}, "body_timeout_s must be a positive, finite number of seconds"),
+        ({"ADSM_BODY_TIMEOUT_S": "-5"}, "body_timeout_s must be a positive, finite number of seconds"),
+        ({"ADSM_BODY_TIMEOUT_S": "nan"}, "body_timeout_s must be a positive, finite number of seconds"),
+        ({"ADSM_BODY_TIMEOUT_S": "inf"}, "body_timeout_s must be a positive, finite number of seconds"),
     ],
 )
 def test_settings_reject_bad_values(env: dict[str, str], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         Settings.from_env(env)
+
+
+@pytest.mark.parametrize("value", [0, -0.5, float("nan"), float("inf"), "30", None, True])
+def test_body_timeout_must_be_a_positive_finite_number(value: object) -> None:
+    with pytest.raises(ValueError, match="body_timeout_s must be a positive, finite number of seconds"):
+        Settings(body_timeout_s=value)
 
 
 def test_depth_is_baseline_times_focal_over_disparity() -> None:
@@ -94,3 +107,8 @@ def test_serve_refuses_bad_options(capsys, monkeypatch) -> None:
     monkeypatch.setenv("ADSM_PORT", "http")
     assert main(["serve"]) == 1
     assert "ADSM_PORT must be an integer" in capsys.readouterr().err
+    monkeypatch.setenv("ADSM_PORT", "")
+    monkeypatch.setenv("ADSM_BODY_TIMEOUT_S", "nan")
+    assert main(["serve"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("adsm: error: body_timeout_s must be a positive") and error.count("\n") == 1

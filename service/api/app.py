@@ -19,6 +19,7 @@ from starlette.staticfiles import StaticFiles
 
 import service
 from service.api import routes_disparity, routes_ops
+from service.api.body_timeout import BodyDeadline
 from service.api.draining import install_sigterm_drain
 from service.api.errors import install_error_handlers
 from service.api.inference import InferenceService
@@ -34,8 +35,9 @@ logger = logging.getLogger("service.api")
 DESCRIPTION = """Dense disparity, depth and point clouds from a rectified stereo pair (ADSM towers + SGM).
 
 Bad input never yields a 500: 400 for bad parameters or fields (FastAPI's 422 is folded into 400),
-413 for a body or image over the limits, 415 for a part that is not an image, 503 + Retry-After when
-the queue is full. Every response has an X-Request-ID header; stereo responses a Server-Timing header."""
+408 for a body that takes longer than ADSM_BODY_TIMEOUT_S to arrive, 413 for a body or image over the
+limits, 415 for a part that is not an image, 503 + Retry-After when the queue is full. Every response
+has an X-Request-ID header; stereo responses a Server-Timing header."""
 
 
 def create_app(settings: Settings | None = None, *, matcher: Matcher | None = None) -> FastAPI:
@@ -64,6 +66,7 @@ def create_app(settings: Settings | None = None, *, matcher: Matcher | None = No
             Middleware(RequestIdMiddleware),  # outermost: every response, even a crash, gets its ID
             Middleware(MetricsMiddleware, metrics=inference.metrics),
             Middleware(BodySizeLimit, max_body_bytes=settings.max_body_bytes),
+            Middleware(BodyDeadline, timeout_s=settings.body_timeout_s),
         ],
     )
     app.state.inference = inference

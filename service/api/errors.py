@@ -6,6 +6,7 @@ The rule (documented in the OpenAPI schema and docs/service.md):
   a missing multipart field, malformed multipart, images of different sizes, a disparity range the
   image cannot hold. FastAPI's own 422 for request validation is folded into 400 so that a client has
   one code to handle; ``errors`` then lists each problem with its location.
+- 408: the body did not arrive in full within ``ADSM_BODY_TIMEOUT_S`` (a stalled or trickled upload).
 - 413: body over the byte limit, an image over the pixel limit (checked before decoding), or a job
   whose cost volume (width x height x disparities) is over the cell limit.
 - 415: a part that is not a decodable image.
@@ -29,6 +30,7 @@ class ErrorBody(BaseModel):
 
 _DESCRIPTIONS = {
     400: "Bad parameters, missing or malformed multipart fields, or images of different sizes.",
+    408: "The request body did not arrive in full within ADSM_BODY_TIMEOUT_S seconds.",
     413: "Request body over ADSM_MAX_BODY_BYTES, an image over ADSM_MAX_PIXELS, or a cost volume "
     "(width x height x disparities) over ADSM_MAX_COST_CELLS.",
     415: "A multipart part is not a decodable image (PNG, JPEG, PPM/PGM, TIFF, ...).",

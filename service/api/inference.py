@@ -1,9 +1,9 @@
 """The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
 
-Pipeline of a stereo request: admission (503 at once when the queue is full) -> multipart body ->
-decode both images in a thread (pixel limit before decoding) -> wait for the inference slot ->
-match in a thread -> the route encodes. Each step's seconds go into the Server-Timing header and the
-per-stage histogram.
+Pipeline of a stereo request: admission (503 at once when the queue is full) -> multipart body (408
+when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/body_timeout.py) -> decode both images in a
+thread (pixel limit before decoding) -> wait for the inference slot -> match in a thread -> the route
+encodes. Each step's seconds go into the Server-Timing header and the per-stage histogram.
 """
 
 from __future__ import annotations

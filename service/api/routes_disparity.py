@@ -64,7 +64,7 @@ _PAIR_BODY: dict[str, Any] = {
         },
     }
 }
-_ERRORS = error_responses(400, 413, 415, 503)
+_ERRORS = error_responses(400, 408, 413, 415, 503)
 
 Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,6 +21,9 @@ class Settings:
     max_disparity: int = 256  # upper bound for the max_disparity query
     # Height x width x disparities of one request: bounds memory (about 8 bytes per cell, two volumes).
     max_cost_cells: int = 100_000_000
+    # Seconds a request may take to deliver its whole body (408 after): an upload holds a queue place,
+    # so without a deadline a few trickling clients could keep every place and everyone else at 503.
+    body_timeout_s: float = 30.0
     warmup: bool = True  # compile and run every kernel before /readyz turns ready
 
     def __post_init__(self) -> None:
@@ -31,12 +35,18 @@ class Settings:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"threads must be >= 1, got {self.threads}")
+        timeout = self.body_timeout_s
+        # bool is an int to Python, and nan/inf would silently mean "no deadline": refuse them all.
+        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not (
+            math.isfinite(timeout) and timeout > 0
+        ):
+            raise ValueError(f"body_timeout_s must be a positive, finite number of seconds, got {timeout!r}")
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
         """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
-        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS`` and ``ADSM_WARMUP``; unset or
-        empty keeps the default."""
+        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``, ``ADSM_BODY_TIMEOUT_S`` and
+        ``ADSM_WARMUP``; unset or empty keeps the default."""
         env = os.environ if environ is None else environ
         values: dict[str, object] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
@@ -48,6 +58,7 @@ class Settings:
             ("max_pixels", _parse_int),
             ("max_disparity", _parse_int),
             ("max_cost_cells", _parse_int),
+            ("body_timeout_s", _parse_float),
             ("warmup", _parse_bool),
         ):
             name = f"ADSM_{field.upper()}"
@@ -61,6 +72,13 @@ def _parse_int(name: str, raw: str) -> int:
         return int(raw.replace("_", ""))
     except ValueError:
         raise ValueError(f"{name} must be an integer, got {raw!r}") from None
+
+
+def _parse_float(name: str, raw: str) -> float:
+    try:
+        return float(raw)  # accepts "nan" and "inf": __post_init__ refuses them with the range check
+    except ValueError:
+        raise ValueError(f"{name} must be a number, got {raw!r}") from None
 
 
 def _parse_bool(name: str, raw: str) -> bool:
