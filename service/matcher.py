@@ -70,21 +70,23 @@ class StereoResult:
     timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
 
 
-# Largest image the towers run on at once. ONNX Runtime's arena keeps the buffers of the largest run
-# (int8 convs: ~1-2 KB per pixel), so larger images go through the towers in row strips that overlap by
-# half the receptive field: exact features, ~10 % more tower work at KITTI size (2 strips), half the
-# arena (adsm-paper-int8 at 375x1242: Matcher peak RSS 1847 -> see docs/performance.md).
-TOWER_STRIP_PIXELS = 256 * 1024
+# Largest tower run, in pixels x feature channels. ONNX Runtime's arena keeps the buffers of the largest
+# run, and they grow with the channel count (int8 convs at 64 channels: ~1-2 KB per pixel), so larger
+# images go through the towers in row strips that overlap by half the receptive field: exact features,
+# ~10-15 % more tower work for 2 strips. The budget is 256 Ki pixels at 64 channels (adsm-paper-int8 at
+# 375x1242: 2 strips, Matcher peak RSS 1847 -> 1500 MiB) and 1 Mi pixels at 16 (adsm-fast-int8 at
+# 375x1242 runs whole: towers 0.56 -> 0.47 s, tower peak RSS 680 -> 815 MiB; docs/performance.md).
+TOWER_STRIP_CELLS = 64 * 256 * 1024
 
 
-def tower_strips(height: int, width: int, halo: int) -> list[tuple[int, int, int, int]]:
+def tower_strips(height: int, width: int, halo: int, *, channels: int) -> list[tuple[int, int, int, int]]:
     """Row strips ``(run_top, run_bottom, keep_top, keep_bottom)`` covering ``height`` rows.
 
     The towers run on rows ``run_top:run_bottom``; rows ``keep_top:keep_bottom`` of the image are kept,
     each at least ``halo`` rows from a strip edge that is not an image edge, so its receptive field lies
     inside the strip and its features equal those of the whole image.
     """
-    core = max(TOWER_STRIP_PIXELS // max(width, 1), 2 * halo + 1)
+    core = max(TOWER_STRIP_CELLS // max(width * channels, 1), 2 * halo + 1)
     count = -(-height // core)
     core = -(-height // count)  # equal strips
     strips = []
@@ -143,10 +145,10 @@ class Matcher:
     def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tower features of both views, in row strips when the image is larger than the strip budget."""
         height, width = left.shape[:2]
-        strips = tower_strips(height, width, int(self.manifest["receptive_field"]) // 2)
+        channels = int(self.manifest["channels"])
+        strips = tower_strips(height, width, int(self.manifest["receptive_field"]) // 2, channels=channels)
         if len(strips) == 1:
             return self.towers(left, right)
-        channels = int(self.manifest["channels"])
         features = (np.empty((channels, height, width), np.float32), np.empty((channels, height, width),
                                                                               np.float32))
         for run_top, run_bottom, keep_top, keep_bottom in strips:

@@ -18,8 +18,8 @@ from service.matcher import Matcher, MatchOptions, tower_strips
     ("height", "width", "halo"), [(375, 1242, 18), (1, 5, 4), (50, 20000, 4), (97, 3000, 0)]
 )
 def test_tower_strips_cover_every_row_once_with_halo(monkeypatch, height, width, halo):
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 20_000)
-    strips = tower_strips(height, width, halo)
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", 20_000 * 16)
+    strips = tower_strips(height, width, halo, channels=16)
     kept = np.zeros(height, int)
     for run_top, run_bottom, keep_top, keep_bottom in strips:
         kept[keep_top:keep_bottom] += 1
@@ -28,6 +28,12 @@ def test_tower_strips_cover_every_row_once_with_halo(monkeypatch, height, width,
         assert keep_top - run_top >= halo or run_top == 0
         assert run_bottom - keep_bottom >= halo or run_bottom == height
     assert (kept == 1).all()
+
+
+def test_strip_budget_scales_with_channels():
+    # KITTI size: a 16-channel tower runs whole, a 64-channel one in 2 strips (its arena is 4x larger).
+    assert len(tower_strips(375, 1242, 18, channels=16)) == 1
+    assert len(tower_strips(375, 1242, 18, channels=64)) == 2
 
 
 @pytest.mark.parametrize("model", ["ncc-baseline", "default"])
@@ -39,13 +45,14 @@ def test_strip_features_equal_whole_image_features(monkeypatch, model):
     rng = np.random.default_rng(3)
     left, right = (rng.integers(0, 256, (height, width, 3), dtype=np.uint8) for _ in range(2))
     whole = matcher.towers(left, right)
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", width)  # forces the smallest strips
-    assert len(tower_strips(height, width, halo)) == 5
+    channels = int(matcher.manifest["channels"])
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", width * channels)  # the smallest strips
+    assert len(tower_strips(height, width, halo, channels=channels)) == 5
     strips = matcher._features(left, right)
     for a, b in zip(whole, strips, strict=True):
         np.testing.assert_allclose(b, a, atol=1e-5)
     result = matcher(left, right, MatchOptions(max_disparity=16))
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_PIXELS", 10**9)
+    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", 10**12)
     reference = matcher(left, right, MatchOptions(max_disparity=16))
     np.testing.assert_array_equal(result.validity, reference.validity)
     np.testing.assert_allclose(result.disparity, reference.disparity, atol=1e-3, equal_nan=True)
