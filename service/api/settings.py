@@ -19,7 +19,8 @@ class Settings:
     max_body_bytes: int = 32 * 1024 * 1024  # whole request body, multipart framing included
     max_pixels: int = 2_100_000  # per image, checked on the header before decoding (1920x1080 fits)
     max_disparity: int = 256  # upper bound for the max_disparity query
-    # Height x width x disparities of one request: bounds memory (about 8 bytes per cell, two volumes).
+    # Height x width x disparities of one request: bounds memory (4 bytes per cell, two int16 volumes that
+    # the Matcher keeps between requests at the largest size served).
     max_cost_cells: int = 100_000_000
     # Seconds a request may take to deliver its whole body (408 after): an upload holds a queue place,
     # so without a deadline a few trickling clients could keep every place and everyone else at 503.
