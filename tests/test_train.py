@@ -43,7 +43,7 @@ def test_schedule_warms_up_then_decays_to_the_floor():
 
 
 def test_batches_are_a_function_of_seed_and_index():
-    spec = BatchSpec(height=48, width=96, max_disparity=24)
+    spec = BatchSpec(height=48, width=96, max_disparity=24, augmentation="photometric")
     data = TrainingData("synthetic", seed=3, spec=spec)
     left, right, disparity = data.crops([5, 6])
     again = TrainingData("synthetic", seed=3, spec=spec).crops([5, 6])

@@ -19,7 +19,7 @@ import sys
 
 from training.networks import DEFAULT_CONFIG, list_configs
 from training.trainer import TrainConfig, train
-from training.trainer.batches import AUGMENTATIONS
+from training.trainer.batches import AUGMENTATIONS, DEFAULT_AUGMENTATION
 from training.validate import CONES
 
 # Paper defaults for patch mode (section 4: batch 128, 40000 iterations); dense defaults measured here.
@@ -51,7 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--schedule", choices=("cosine", "constant"), default="cosine")
     parser.add_argument("--crop", type=int, nargs=2, default=(128, 256), metavar=("H", "W"))
     parser.add_argument("--max-disparity", type=int, default=96, help="synthetic scenes' nearest disparity")
-    parser.add_argument("--augmentation", choices=AUGMENTATIONS, default="photometric")
+    parser.add_argument("--augmentation", choices=AUGMENTATIONS, default=DEFAULT_AUGMENTATION,
+                        help="on top of the generator's camera effects (default chosen by measurement: "
+                             "docs/training.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")

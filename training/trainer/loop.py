@@ -25,7 +25,7 @@ from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.networks import build_tower_pair
 from training.schedule import learning_rate
-from training.trainer.batches import BatchSpec, TrainingData
+from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.warm_start import warm_start
 from training.validate import CONES, DEFAULT_DEPLOY, runtime_metrics
@@ -49,7 +49,7 @@ class TrainConfig:
     seed: int = 0
     crop: tuple[int, int] = (128, 256)
     max_disparity: int = 96
-    augmentation: str = "photometric"
+    augmentation: str = DEFAULT_AUGMENTATION
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES                  # evaluation only; "" skips it
