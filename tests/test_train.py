@@ -31,7 +31,7 @@ def history(out) -> list[dict]:
 
 
 def test_schedule_warms_up_then_decays_to_the_floor():
-    rates = [learning_rate(s, peak=1e-3, iterations=200) for s in range(200)]
+    rates = [learning_rate(s, peak=1e-3, iterations=200, schedule="cosine") for s in range(200)]
     assert rates[0] < rates[3] == pytest.approx(1e-3, rel=1e-6)      # 4 warm-up steps (2 %)
     assert all(a >= b for a, b in itertools.pairwise(rates[4:]))
     assert rates[-1] == pytest.approx(FLOOR_FRACTION * 1e-3, rel=1e-3)

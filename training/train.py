@@ -18,6 +18,7 @@ import shlex
 import sys
 
 from training.networks import DEFAULT_CONFIG, list_configs
+from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
 from training.trainer import TrainConfig, train
 from training.trainer.batches import AUGMENTATIONS, DEFAULT_AUGMENTATION
 from training.validate import CONES
@@ -48,7 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--resume", help="checkpoint (OUT/last.pt) to continue exactly")
     parser.add_argument("--seed", type=int, default=0, help="0..99: picks the training examples and init")
     parser.add_argument("--lr", type=float, default=1e-3, help="peak Adam learning rate")
-    parser.add_argument("--schedule", choices=("cosine", "constant"), default="cosine")
+    parser.add_argument("--schedule", choices=SCHEDULES, default=DEFAULT_SCHEDULE,
+                        help="learning rate: constant, or 2 %% warm-up then cosine decay to 5 %% "
+                             "(default chosen by measurement: docs/training.md)")
     parser.add_argument("--crop", type=int, nargs=2, default=(128, 256), metavar=("H", "W"))
     parser.add_argument("--max-disparity", type=int, default=96, help="synthetic scenes' nearest disparity")
     parser.add_argument("--augmentation", choices=AUGMENTATIONS, default=DEFAULT_AUGMENTATION,

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.networks import build_tower_pair
-from training.schedule import learning_rate
+from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.warm_start import warm_start
@@ -44,7 +44,7 @@ class TrainConfig:
     iterations: int = 1000
     batch_size: int = 2                 # per process: crops (dense) or patch pairs (patch)
     lr: float = 1e-3
-    schedule: str = "cosine"
+    schedule: str = DEFAULT_SCHEDULE
     weight_decay: float = 0.0
     seed: int = 0
     crop: tuple[int, int] = (128, 256)
