@@ -15,7 +15,7 @@ from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint
 from training.networks import build_tower_pair
 from training.schedule import FLOOR_FRACTION, learning_rate
-from training.train import main
+from training.train import build_parser, main, recorded_command
 from training.trainer import BatchSpec, TrainConfig, TrainingData, train
 from training.trainer.objective import Objective
 from training.validate import TorchTowers, tune_sgm
@@ -152,6 +152,12 @@ def test_validation_runs_the_runtime_and_tunes_on_synthetic_only():
     assert len(rows) == 2
     chosen = next(r for r in rows if (r["p1"], r["p2"]) == (best["p1"], best["p2"]))
     assert chosen["bad2"] == min(r["bad2"] for r in rows)
+
+
+def test_recorded_command_names_the_measured_defaults():
+    argv = ["--iterations", "9", "--schedule=cosine"]
+    command = recorded_command(argv, build_parser().parse_args(argv))
+    assert command == "python -m training.train --iterations 9 --schedule=cosine --augmentation none"
 
 
 def test_cli_rejects_bad_arguments(capsys):

@@ -70,10 +70,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def recorded_command(argv: list[str], args: argparse.Namespace) -> str:
+    """The command stored with the checkpoint, naming the values of the defaults chosen by measurement.
+
+    Those defaults may change after a later measurement; a command that names them still reproduces
+    the run. ``recorded_command(["--iterations", "9"], parse(...))`` ->
+    ``python -m training.train --iterations 9 --schedule constant --augmentation none``.
+    """
+    given = list(argv)
+    for flag, value in (("--schedule", args.schedule), ("--augmentation", args.augmentation)):
+        if not any(word == flag or word.startswith(flag + "=") for word in given):
+            given += [flag, value]
+    return shlex.join(["python", "-m", "training.train", *given])
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     defaults = MODE_DEFAULTS[args.mode]
-    command = shlex.join(["python", "-m", "training.train", *(sys.argv[1:] if argv is None else argv)])
+    command = recorded_command(sys.argv[1:] if argv is None else argv, args)
     for name, value in (("iterations", args.iterations), ("batch-size", args.batch_size),
                         ("channels", args.channels), ("val-every", args.val_every)):
         if value is not None and value < 1:
