@@ -1,10 +1,13 @@
-"""Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service."""
+"""Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service,
+an instant stand-in for the Matcher and a tiny PNG pair for service tests that do not need real matching."""
 
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import tempfile
+import threading
 from collections.abc import AsyncIterator
 
 import numpy as np
@@ -38,3 +41,41 @@ async def ready_client(app, *, timeout: float = 120) -> AsyncIterator:
                 while (await client.get("/readyz")).status_code != 200:
                     await anyio.sleep(0.05)
             yield client
+
+
+class InstantMatcher:
+    """Stands in for the Matcher: answers at once (or once ``gate`` is set), or raises ``error``."""
+
+    def __init__(self, gate: threading.Event | None = None, error: Exception | None = None) -> None:
+        from service.features import default_model_dir, load_manifest
+
+        self.manifest = load_manifest(default_model_dir())
+        self.gate = gate
+        self.error = error
+        self.calls = 0
+
+    def warmup(self) -> None:
+        pass
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, options):
+        from service.matcher import StereoResult
+
+        self.calls += 1
+        if self.gate is not None:
+            assert self.gate.wait(10), "test never opened the gate"
+        if self.error is not None:
+            raise self.error
+        shape = left.shape[:2]
+        return StereoResult(np.ones(shape, np.float32), np.zeros(shape, np.uint8), {"towers": 0.0})
+
+
+def tiny_png() -> bytes:
+    """An 8x12 black RGB PNG."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+TINY_PAIR = {"left": ("l.png", tiny_png(), "image/png"), "right": ("r.png", tiny_png(), "image/png")}

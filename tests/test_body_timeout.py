@@ -9,22 +9,17 @@ a broken deadline shows up as a wrong status, not as a slow test.
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import threading
 from collections.abc import AsyncIterator
 
 import anyio
 import httpx
-import numpy as np
 import pytest
-from conftest import ready_client
-from PIL import Image
+from conftest import TINY_PAIR, InstantMatcher, ready_client
 
 from service.api import Settings, create_app
 from service.api.body_timeout import BodyDeadline
-from service.features import default_model_dir, load_manifest
-from service.matcher import MatchOptions, StereoResult
 
 pytestmark = pytest.mark.anyio
 
@@ -36,36 +31,8 @@ def anyio_backend() -> str:
     return "asyncio"
 
 
-class _Matcher:
-    """A matcher that answers at once, or once ``gate`` is set when it has one."""
-
-    def __init__(self, gate: threading.Event | None = None) -> None:
-        self.manifest = load_manifest(default_model_dir())
-        self.gate = gate
-        self.calls = 0
-
-    def warmup(self) -> None:
-        pass
-
-    def __call__(self, left: np.ndarray, right: np.ndarray, options: MatchOptions) -> StereoResult:
-        self.calls += 1
-        if self.gate is not None:
-            assert self.gate.wait(10), "test never opened the gate"
-        shape = left.shape[:2]
-        return StereoResult(np.ones(shape, np.float32), np.zeros(shape, np.uint8), {"towers": 0.0})
-
-
-def _png() -> bytes:
-    buffer = io.BytesIO()
-    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(buffer, format="PNG")
-    return buffer.getvalue()
-
-
-PAIR = {"left": ("l.png", _png(), "image/png"), "right": ("r.png", _png(), "image/png")}
-
-
 def _multipart() -> tuple[bytes, str]:
-    request = httpx.Request("POST", "http://test/disparity", files=PAIR)
+    request = httpx.Request("POST", "http://test/disparity", files=TINY_PAIR)
     return request.read(), request.headers["content-type"]
 
 
@@ -82,7 +49,7 @@ def _assert_timed_out(response: httpx.Response) -> None:
 
 async def test_trickled_body_is_408_and_gives_its_place_back() -> None:
     # queue_size=0: a single place, so a leaked one would turn the next request into a 503.
-    app = create_app(Settings(queue_size=0, body_timeout_s=TIMEOUT_S), matcher=_Matcher())
+    app = create_app(Settings(queue_size=0, body_timeout_s=TIMEOUT_S), matcher=InstantMatcher())
     slot = app.state.inference.slot
     places_held: list[int] = []
 
@@ -98,7 +65,7 @@ async def test_trickled_body_is_408_and_gives_its_place_back() -> None:
         _assert_timed_out(response)
         assert places_held == [1]  # the upload did hold the place...
         assert slot.waiting == 0 and not slot.running  # ...and gave it back
-        assert (await client.post("/disparity", files=PAIR)).status_code == 200  # the server is fine
+        assert (await client.post("/disparity", files=TINY_PAIR)).status_code == 200  # the server is fine
         metrics = (await client.get("/metrics")).text
     assert 'adsm_http_requests_total{method="POST",route="/disparity",status="408"} 1.0' in metrics
     assert 'adsm_http_requests_total{method="POST",route="/disparity",status="200"} 1.0' in metrics
@@ -106,7 +73,7 @@ async def test_trickled_body_is_408_and_gives_its_place_back() -> None:
 
 
 async def test_a_client_that_stops_sending_is_408() -> None:
-    app = create_app(Settings(queue_size=0, body_timeout_s=TIMEOUT_S), matcher=_Matcher())
+    app = create_app(Settings(queue_size=0, body_timeout_s=TIMEOUT_S), matcher=InstantMatcher())
     sent: list[dict] = []
     reads = 0
 
@@ -131,7 +98,7 @@ async def test_a_client_that_stops_sending_is_408() -> None:
         with anyio.fail_after(10):  # a missing deadline would hang here
             await app(scope, receive, send)
         assert app.state.inference.slot.waiting == 0
-        assert (await client.post("/disparity", files=PAIR)).status_code == 200
+        assert (await client.post("/disparity", files=TINY_PAIR)).status_code == 200
     start, body = sent[0], sent[1]
     assert start["status"] == 408 and (b"connection", b"close") in start["headers"]
     detail = json.loads(body["body"])["detail"]
@@ -160,7 +127,7 @@ async def test_a_body_read_outside_a_route_is_answered_408_by_the_middleware() -
 
 
 async def test_a_body_sent_in_chunks_within_the_timeout_is_unaffected() -> None:
-    app = create_app(Settings(body_timeout_s=60), matcher=_Matcher())
+    app = create_app(Settings(body_timeout_s=60), matcher=InstantMatcher())
 
     async def chunks() -> AsyncIterator[bytes]:
         for start in range(0, len(BODY), 100):
@@ -174,15 +141,15 @@ async def test_a_body_sent_in_chunks_within_the_timeout_is_unaffected() -> None:
 
 async def test_waiting_in_the_queue_is_not_counted_as_upload_time() -> None:
     gate = threading.Event()
-    matcher = _Matcher(gate)
+    matcher = InstantMatcher(gate)
     app = create_app(Settings(queue_size=1, body_timeout_s=TIMEOUT_S), matcher=matcher)
     slot = app.state.inference.slot
     async with ready_client(app) as client:
-        running = asyncio.ensure_future(client.post("/disparity", files=PAIR))
+        running = asyncio.ensure_future(client.post("/disparity", files=TINY_PAIR))
         with anyio.fail_after(10):
             while not slot.running:
                 await anyio.sleep(0.01)
-        queued = asyncio.ensure_future(client.post("/disparity", files=PAIR))
+        queued = asyncio.ensure_future(client.post("/disparity", files=TINY_PAIR))
         with anyio.fail_after(10):
             while slot.waiting != 1:
                 await anyio.sleep(0.01)

@@ -15,13 +15,10 @@ import httpx
 import numpy as np
 import pytest
 import yaml
-from conftest import ready_client
-from PIL import Image
+from conftest import TINY_PAIR, InstantMatcher, ready_client, tiny_png
 
 from service.api import Settings, create_app
-from service.features import default_model_dir, load_manifest
 from service.io import read_disparity
-from service.matcher import MatchOptions, StereoResult
 
 ROOT = Path(__file__).resolve().parents[1]
 CODE_DIRS = ("service", "training", "export", "bench")
@@ -40,30 +37,6 @@ class _Touch:
 
     def __reduce__(self):
         return Path.touch, (self.marker,)
-
-
-class _InstantMatcher:
-    def __init__(self, error: Exception | None = None) -> None:
-        self.manifest = load_manifest(default_model_dir())
-        self.error = error
-
-    def warmup(self) -> None:
-        pass
-
-    def __call__(self, left: np.ndarray, right: np.ndarray, options: MatchOptions) -> StereoResult:
-        if self.error is not None:
-            raise self.error
-        shape = left.shape[:2]
-        return StereoResult(np.ones(shape, np.float32), np.zeros(shape, np.uint8), {"towers": 0.0})
-
-
-def _png() -> bytes:
-    buffer = io.BytesIO()
-    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(buffer, format="PNG")
-    return buffer.getvalue()
-
-
-PAIR = {"left": ("l.png", _png(), "image/png"), "right": ("r.png", _png(), "image/png")}
 
 
 @pytest.fixture
@@ -160,10 +133,10 @@ async def test_pickles_uploaded_as_images_are_never_unpickled(tmp_path: Path) ->
         "pickle": pickle.dumps(_Touch(marker)),
         "npy of objects": _npy_of_objects(marker),
     }
-    app = create_app(Settings(), matcher=_InstantMatcher())
+    app = create_app(Settings(), matcher=InstantMatcher())
     async with ready_client(app) as client:
         for kind, payload in payloads.items():
-            files = {"left": ("l.npy", payload, "application/octet-stream"), "right": PAIR["right"]}
+            files = {"left": ("l.npy", payload, "application/octet-stream"), "right": TINY_PAIR["right"]}
             response = await client.post("/disparity", files=files)
             assert response.status_code == 415, (kind, response.text)
     assert not marker.exists()
@@ -199,7 +172,7 @@ def test_checkpoints_refuse_pickled_code(tmp_path: Path) -> None:
 # --- a bound on every input -----------------------------------------------------------------------------
 
 def test_every_stereo_parameter_is_bounded() -> None:
-    schema = create_app(Settings(), matcher=_InstantMatcher()).openapi()
+    schema = create_app(Settings(), matcher=InstantMatcher()).openapi()
     for path in ("/disparity", "/depth", "/pointcloud"):
         for parameter in schema["paths"][path]["post"]["parameters"]:
             variants = parameter["schema"].get("anyOf", [parameter["schema"]])
@@ -220,16 +193,17 @@ def test_every_stereo_parameter_is_bounded() -> None:
 
 @pytest.mark.anyio
 async def test_metrics_expose_no_request_data() -> None:
-    app = create_app(Settings(max_body_bytes=50_000), matcher=_InstantMatcher())
-    files = {"left": (f"{SECRET}.png", _png(), "image/png"),
-             "right": (f"{SECRET}-r.png", _png(), "image/png")}
+    app = create_app(Settings(max_body_bytes=50_000), matcher=InstantMatcher())
+    files = {"left": (f"{SECRET}.png", tiny_png(), "image/png"),
+             "right": (f"{SECRET}-r.png", tiny_png(), "image/png")}
     headers = {"X-Request-ID": SECRET, "User-Agent": SECRET, "Cookie": f"session={SECRET}",
                "Authorization": f"Bearer {SECRET}"}
     async with ready_client(app) as client:
         assert (await client.post("/disparity", files=files, headers=headers)).status_code == 200
         await client.post("/disparity", params={SECRET: "1"}, files=files, headers=headers)
         await client.post("/disparity", params={"max_disparity": SECRET}, files=files)
-        await client.post("/disparity", files={"left": (SECRET, SECRET.encode()), "right": PAIR["right"]})
+        await client.post("/disparity",
+                          files={"left": (SECRET, SECRET.encode()), "right": TINY_PAIR["right"]})
         await client.post("/disparity", content=SECRET.encode() * 10_000)
         await client.get(f"/{SECRET}")
         await client.get(f"/static/{SECRET}.js")
@@ -245,9 +219,9 @@ async def test_metrics_expose_no_request_data() -> None:
 
 @pytest.mark.anyio
 async def test_a_crash_reveals_no_internals() -> None:
-    app = create_app(Settings(), matcher=_InstantMatcher(RuntimeError(f"boom in /secret/{SECRET}.py")))
+    app = create_app(Settings(), matcher=InstantMatcher(error=RuntimeError(f"boom in /secret/{SECRET}.py")))
     async with ready_client(app) as client:
-        response = await client.post("/disparity", files=PAIR)
+        response = await client.post("/disparity", files=TINY_PAIR)
         assert (await client.get("/healthz")).status_code == 200  # still up
     assert response.status_code == 500
     assert response.json() == {"detail": f"internal error (request {response.headers['x-request-id']})"}
@@ -256,7 +230,7 @@ async def test_a_crash_reveals_no_internals() -> None:
 
 @pytest.mark.anyio
 async def test_static_files_do_not_escape_their_folder() -> None:
-    app = create_app(Settings(), matcher=_InstantMatcher())
+    app = create_app(Settings(), matcher=InstantMatcher())
     client = await _client(app)
     async with client:
         for path in ("/static/../app.py", "/static/%2e%2e/app.py", "/static/..%2fapp.py",

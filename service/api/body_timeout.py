@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import anyio
 from starlette.exceptions import HTTPException
-from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from service.api.body_guard import run_guarded
 
 
 class BodyTimedOut(HTTPException):
@@ -62,17 +63,5 @@ class BodyDeadline:
             complete = message["type"] != "http.request" or not message.get("more_body", False)
             return message
 
-        response_started = False
-
-        async def tracking_send(message: Message) -> None:
-            nonlocal response_started
-            response_started |= message["type"] == "http.response.start"
-            await send(message)
-
-        try:
-            await self.app(scope, timed_receive, tracking_send)
-        except BodyTimedOut as error:  # read outside a route (no handler caught it)
-            if response_started:
-                raise
-            response = JSONResponse({"detail": error.detail}, status_code=408, headers=error.headers)
-            await response(scope, receive, send)
+        await run_guarded(self.app, scope, receive, send, guarded_receive=timed_receive,
+                          error_type=BodyTimedOut)

@@ -11,6 +11,8 @@ from starlette.exceptions import HTTPException
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.api.body_guard import run_guarded
+
 
 class BodyTooLarge(HTTPException):
     def __init__(self, limit: int) -> None:
@@ -46,19 +48,8 @@ class BodySizeLimit:
                     raise BodyTooLarge(limit)
             return message
 
-        response_started = False
-
-        async def tracking_send(message: Message) -> None:
-            nonlocal response_started
-            response_started |= message["type"] == "http.response.start"
-            await send(message)
-
-        try:
-            await self.app(scope, counting_receive, tracking_send)
-        except BodyTooLarge as error:  # read outside a route (no handler caught it)
-            if response_started:
-                raise
-            await JSONResponse({"detail": error.detail}, status_code=413)(scope, receive, send)
+        await run_guarded(self.app, scope, receive, send, guarded_receive=counting_receive,
+                          error_type=BodyTooLarge)
 
 
 def _content_length(scope: Scope) -> int | None:
