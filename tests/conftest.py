@@ -79,3 +79,13 @@ def tiny_png() -> bytes:
 
 
 TINY_PAIR = {"left": ("l.png", tiny_png(), "image/png"), "right": ("r.png", tiny_png(), "image/png")}
+
+
+def disparity_scope(body: bytes, content_type: str) -> dict:
+    """The ASGI scope of a raw ``POST /disparity`` of ``body``, for tests that drive the app by hand."""
+    return {
+        "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
+        "path": "/disparity", "raw_path": b"/disparity", "query_string": b"", "root_path": "",
+        "headers": [(b"content-type", content_type.encode()), (b"content-length", str(len(body)).encode())],
+        "client": ("127.0.0.1", 5000), "server": ("127.0.0.1", 80),
+    }

@@ -15,6 +15,7 @@ import anyio
 import httpx
 import numpy as np
 import pytest
+from conftest import disparity_scope
 from PIL import Image
 
 from service.api import Settings, create_app
@@ -197,12 +198,7 @@ async def test_client_that_disconnects_while_queued_never_runs() -> None:
     async def send(message: dict) -> None:
         sent.append(message)
 
-    scope = {
-        "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
-        "path": "/disparity", "raw_path": b"/disparity", "query_string": b"", "root_path": "",
-        "headers": [(b"content-type", content_type.encode()), (b"content-length", str(len(body)).encode())],
-        "client": ("127.0.0.1", 5000), "server": ("127.0.0.1", 80),
-    }
+    scope = disparity_scope(body, content_type)
     async with app.router.lifespan_context(app), _client(app) as client:
         await _until(lambda: app.state.inference.ready)
         running = asyncio.ensure_future(client.post("/disparity", files=PAIR))

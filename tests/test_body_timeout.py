@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator
 import anyio
 import httpx
 import pytest
-from conftest import TINY_PAIR, InstantMatcher, ready_client
+from conftest import TINY_PAIR, InstantMatcher, disparity_scope, ready_client
 
 from service.api import Settings, create_app
 from service.api.body_timeout import BodyDeadline
@@ -88,12 +88,7 @@ async def test_a_client_that_stops_sending_is_408() -> None:
     async def send(message: dict) -> None:
         sent.append(message)
 
-    scope = {
-        "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
-        "path": "/disparity", "raw_path": b"/disparity", "query_string": b"", "root_path": "",
-        "headers": [(b"content-type", CONTENT_TYPE.encode()), (b"content-length", str(len(BODY)).encode())],
-        "client": ("127.0.0.1", 5000), "server": ("127.0.0.1", 80),
-    }
+    scope = disparity_scope(BODY, CONTENT_TYPE)
     async with ready_client(app) as client:
         with anyio.fail_after(10):  # a missing deadline would hang here
             await app(scope, receive, send)
