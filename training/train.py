@@ -66,7 +66,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stop-after", type=int, metavar="STEP",
                         help="stop after this step (checkpoint written) without changing the schedule of "
                              "--iterations: a time-bounded run that --resume can continue")
+    parser.add_argument("--time-budget", type=float, metavar="SECONDS",
+                        help="stop (validated and checkpointed) at the first step after this many seconds; "
+                             "--resume continues: chunks that fit a time-limited machine")
     parser.add_argument("--threads", type=int, help="torch threads per process (default: cores / processes)")
+    parser.add_argument("--device", default="cpu",
+                        help="cpu (default) or cuda[:N]; training on a GPU: docs/training.md, 'GPU recipe'")
+    parser.add_argument("--workers", type=int, default=0,
+                        help="processes that build batches ahead of the optimizer (0: none); on a GPU "
+                             "generating synthetic pairs is the bottleneck, so use most of the cores")
     return parser
 
 
@@ -93,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
         if value is not None and value < 1:
             print(f"training.train: error: --{name} must be >= 1, got {value}", file=sys.stderr)
             return 2
+    if args.workers < 0:
+        print(f"training.train: error: --workers must be >= 0, got {args.workers}", file=sys.stderr)
+        return 2
     config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared,
                          temperature=args.temperature, data=args.data,
                          mode=args.mode, iterations=args.iterations or defaults["iterations"],
@@ -100,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
-                         threads=args.threads, stop_after=args.stop_after,
+                         threads=args.threads, stop_after=args.stop_after, device=args.device,
+                         time_budget_s=args.time_budget,
+                         workers=args.workers,
                          init_from=args.init_from, command=command)
     try:
         summary = train(config, resume=args.resume)

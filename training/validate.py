@@ -57,7 +57,8 @@ class TorchTowers:
     def _features(self, tower: torch.nn.Module, image: np.ndarray) -> np.ndarray:
         tensor = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float().div_(255.0)
         tensor = (tensor - self._mean) / self._std
-        return dense_features(tower, tensor[None])[0].numpy()
+        device = next(tower.parameters()).device
+        return dense_features(tower, tensor[None].to(device))[0].cpu().numpy()
 
     @torch.no_grad()
     def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

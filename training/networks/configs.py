@@ -69,12 +69,12 @@ def split_kernels(reduction: int, layers: int) -> tuple[int, ...]:
     return tuple(base + 1 + (1 if index < extra else 0) for index in range(layers))
 
 
-def _ruled(patch: int, deconvs: tuple[int, ...], convs: int) -> TowerConfig:
+def _ruled(patch: int, deconvs: tuple[int, ...], convs: int, table: str = "Table 7") -> TowerConfig:
     """A Table 7 row: kernels from :func:`split_kernels`, no ReLU after a single deconv (as Table 2)."""
     reduction = patch - 1 + sum(k - 1 for k in deconvs)
     deconv_part = f"{len(deconvs)}deconv{deconvs[0]}-" if deconvs else ""
     return TowerConfig(name=f"{patch}-{deconv_part}{convs}conv", patch=patch, deconv_kernels=deconvs,
-                       conv_kernels=split_kernels(reduction, convs), deconv_relu=False, table="Table 7")
+                       conv_kernels=split_kernels(reduction, convs), deconv_relu=False, table=table)
 
 
 _PRINTED = (
@@ -116,7 +116,15 @@ _TABLE7 = (
     _ruled(45, (), 4), _ruled(45, (), 5), _ruled(45, (), 8), _ruled(45, (3,), 4),
 )
 
-CONFIGS: dict[str, TowerConfig] = {config.name: config for config in _PRINTED + _TABLE7}
+# The project's extension beside the paper's 29-45 px rows: small receptive fields that keep depth edges
+# sharp (a 3x3 NCC beats the 37-px towers at Cones' discontinuities: docs/training.md). 9-4conv is
+# MC-CNN-fast's geometry (four 3x3 convs); the deconv rows follow the paper's 1Deconv&4Conv pattern.
+_SMALL = (
+    *(_ruled(patch, deconvs, convs, table="project extension")
+      for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4))),
+)
+
+CONFIGS: dict[str, TowerConfig] = {config.name: config for config in _PRINTED + _TABLE7 + _SMALL}
 
 
 def list_configs() -> list[str]:

@@ -27,6 +27,7 @@ from training.networks import build_tower_pair
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
+from training.trainer.prefetch import StepBatches, step_batches
 from training.trainer.warm_start import warm_start
 from training.validate import CONES, DEFAULT_DEPLOY, runtime_metrics
 
@@ -55,8 +56,11 @@ class TrainConfig:
     cones: str = CONES                  # evaluation only; "" skips it
     out: str = "runs/train"
     threads: int | None = None
+    device: str = "cpu"                 # "cuda[:N]" trains on a GPU; validation stays in the runtime
+    workers: int = 0                    # processes that build batches ahead (0: in the loop's process)
     init_from: str | None = None        # warm start (weights only, widened if needed); not with resume
     stop_after: int | None = None       # stop (validate + checkpoint) after this step, as if interrupted
+    time_budget_s: float | None = None  # likewise, at the first step after this many seconds of this run
     command: str = ""
 
 
@@ -87,8 +91,11 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     data = TrainingData(config.data, seed=config.seed, spec=spec)
     examples_per_step = 4 if config.mode == "patch" else config.batch_size
 
+    device = torch.device(config.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {config.device}: this torch build sees no CUDA device")
     model = build_tower_pair(config.config, channels=config.channels, shared=config.shared,
-                             temperature=config.temperature)
+                             temperature=config.temperature).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)
     step, wall_before, best = 0, 0.0, None
@@ -118,23 +125,22 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     bar = tqdm(total=config.iterations, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
     metrics: dict[str, Any] = {}
     end = min(config.iterations, config.stop_after or config.iterations)
+    batches = step_batches(StepBatches(data, mode=config.mode, first=step, end=end, world=world, rank=rank,
+                                       examples_per_step=examples_per_step),
+                           workers=config.workers, device=device)
     while step < end:
         model.train()
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(step, peak=config.lr, iterations=config.iterations,
                                         schedule=config.schedule)
-        first = (step * world + rank) * examples_per_step
-        indices = range(first, first + examples_per_step)
         tick = time.perf_counter()
-        if config.mode == "patch":
-            pairs = data.patches(indices)
-            loss, examples = wrapped(pairs.left, pairs.right, pairs.inside)
-        else:
-            loss, examples = wrapped(*data.crops(indices))
+        loss, examples = wrapped(*next(batches))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
         step += 1
+        if _out_of_time(config, started, world):
+            end = step  # validate and checkpoint this step, as if --stop-after had named it
         mean_loss = float(loss.detach())
         if world > 1:
             summed = torch.tensor([mean_loss, float(examples)], dtype=torch.float64)
@@ -169,11 +175,21 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     return {"steps": step, "wall_time_s": wall, "best": best, "metrics": metrics}
 
 
+def _out_of_time(config: TrainConfig, started: float, world: int) -> bool:
+    """Whether the run's time budget is spent; under DDP rank 0's clock decides for every process."""
+    if config.time_budget_s is None:
+        return False
+    spent = torch.tensor([time.perf_counter() - started > config.time_budget_s], dtype=torch.int32)
+    if world > 1:
+        dist.broadcast(spent, src=0)
+    return bool(spent.item())
+
+
 def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: dict[str, Any],
           deploy: dict[str, Any], wall: float, best: float, data: TrainingData, improved: bool) -> None:
     training = {"command": config.command, "data": _describe_data(config, data),
                 "wall_time_s": round(wall, 1), "iterations": step,
-                "device": f"cpu ({torch.get_num_threads()} threads)"}
+                "device": _describe_device(config)}
     if step >= config.iterations:  # the schedule ran to its end (not stopped early)
         training["finished"] = datetime.now(UTC).isoformat(timespec="seconds")
     if config.init_from:
@@ -193,6 +209,13 @@ def warm_start_provenance(init_from: str, wall: float) -> dict[str, Any]:
                 if key in earlier}
     total = wall + float(earlier.get("wall_time_total_s", earlier.get("wall_time_s", 0.0)))
     return {"warm_start": {"checkpoint": init_from, **previous}, "wall_time_total_s": round(total, 1)}
+
+
+def _describe_device(config: TrainConfig) -> str:
+    device = torch.device(config.device)
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} ({config.workers} batch workers)"
+    return f"cpu ({torch.get_num_threads()} threads)"
 
 
 def _describe_data(config: TrainConfig, data: TrainingData) -> str:

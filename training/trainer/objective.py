@@ -25,8 +25,12 @@ class Objective(nn.Module):
         """Dense: ``target`` is the disparity [B, h, w]. Patch: ``target`` is ``inside`` [N, 201]."""
         if self.mode == "patch":
             return matching_loss(self.model(left, right), target), left.shape[0]
-        features_left = dense_features(self.model.left, left)
-        features_right = dense_features(self.model.right, right)
+        # On a GPU the towers run in bfloat16 (tensor cores; BN and the loss stay float32): 3-4x the
+        # steps per second of float32 at no measured cost in validation error (docs/training.md).
+        with torch.autocast(left.device.type, dtype=torch.bfloat16, enabled=left.device.type == "cuda"):
+            features_left = dense_features(self.model.left, left)
+            features_right = dense_features(self.model.right, right)
+        features_left, features_right = features_left.float(), features_right.float()
         temperature = self.model.log_temperature.exp()
         logits, inside, pixels = dense_candidates(features_left, features_right, target,
                                                   temperature=temperature)
