@@ -10,6 +10,10 @@ evaluation pair (Cones) is refused.
 The accuracy is measured on a held-out photograph (never in the calibration set), warped by a known
 disparity ramp into a right view: per-pixel cosine between fp32 and int8 features, and the share of
 pixels whose disparity from the Matcher agrees within 1 px. Both go into the int8 manifest.
+
+The int8 manifest's ``metrics`` are measured on the int8 folder itself (``export.measure``: its own ONNX
+files through the runtime), on the data sets the fp32 twin's metrics were measured on; nothing is copied
+from the fp32 manifest.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ import glob
 import importlib.util
 import json
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +37,7 @@ from onnxruntime.quantization import (
 )
 from onnxruntime.quantization.shape_inference import quant_pre_process
 
+from export.measure import datasets_of, measure_command, measure_folder
 from service.features.manifest import TOWER_FILES, load_manifest, write_manifest
 from service.features.towers import FeatureTowers
 from service.io import read_image
@@ -127,8 +132,13 @@ class _Views(CalibrationDataReader):
 
 
 def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: str = DEFAULT_CALIBRATION,
+                    datasets: Mapping[str, str] | None = None, threads: int | None = None,
                     log: Callable[[str], Any] = lambda _: None) -> Path:
-    """Write the int8 twin of ``fp32_folder`` into ``out``; returns its manifest path."""
+    """Write the int8 twin of ``fp32_folder`` into ``out``; returns its manifest path.
+
+    ``datasets`` (NAME -> ``adsm eval`` SPEC) are measured on the int8 folder for its ``metrics``; None:
+    the data sets the fp32 manifest's metrics record (``export.measure.datasets_of``), {}: none.
+    """
     fp32_folder, out = Path(fp32_folder), Path(out)
     manifest = load_manifest(fp32_folder)
     pairs = calibration_pairs(calibration)
@@ -149,7 +159,9 @@ def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: st
         onnx.checker.check_model(str(out / file_name), full_check=True)
         log(f"quantized {file_name}: {len(views)} calibration views from {calibration}")
     name = manifest["name"][:60] + "-int8"
-    int8 = {**manifest, "name": name, "description": manifest.get("description", "") + "; int8 QDQ"}
+    # Figures of the fp32 towers say nothing about these: metrics are measured below, on this folder.
+    int8 = {**manifest, "name": name, "description": manifest.get("description", "") + "; int8 QDQ",
+            "metrics": {}}
     int8["onnx"] = {**manifest["onnx"], "precision": "int8", "quantization": {
         "method": "onnxruntime static QDQ: per-channel int8 weights, per-tensor uint8 activations (MinMax)",
         "calibration": calibration, "calibration_images": [name for name, _, _ in pairs],
@@ -159,6 +171,11 @@ def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: st
     accuracy = measure_accuracy(fp32_folder, out, held_out, held_out_name)
     int8["onnx"]["quantization"]["accuracy_vs_fp32"] = accuracy
     log(f"int8 vs fp32 on held-out {held_out_name}: {json.dumps(accuracy)}")
+    datasets = datasets_of(manifest) if datasets is None else dict(datasets)
+    if datasets:
+        write_manifest(out, int8)
+        int8["metrics"] = measure_folder(out, datasets, command=measure_command(out, datasets),
+                                         threads=threads, log=log)
     return write_manifest(out, int8)
 
 

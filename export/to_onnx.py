@@ -4,10 +4,13 @@
 
 Writes DIR/left.onnx, DIR/right.onnx and DIR/manifest.json (schema adsm-model/1, validated): config,
 channels, receptive field, input normalisation, cost scale, SGM P1/P2, disparity range, opset, sha256 of
-each file, and the training provenance and metrics copied from the checkpoint. Settings the checkpoint
-does not record (its ``deploy`` dict) fall back to cost scale 128, P1 30, P2 160, default_max 128, or
-come from the options above. With --int8, DIR-int8 holds the int8 twin; the export log prints its
-accuracy against fp32, which its manifest records (onnx.quantization.accuracy_vs_fp32).
+each file, the training provenance copied from the checkpoint, and metrics measured on the written
+folder (its ONNX files through the runtime, as ``python -m export.measure --write`` does: Cones when
+--cones exists, the synthetic validation split's --synthetic pairs; --no-measure leaves them empty).
+Settings the checkpoint does not record (its ``deploy`` dict) fall back to cost scale 128, P1 30, P2 160,
+default_max 128, or come from the options above. With --int8, DIR-int8 holds the int8 twin, measured on
+the same data sets; the export log prints its accuracy against fp32, which its manifest records
+(onnx.quantization.accuracy_vs_fp32).
 
 Each tower becomes one ONNX graph built from the folded PyTorch weights: ``image`` [1, 3, H, W] ->
 edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
@@ -22,6 +25,7 @@ import argparse
 import dataclasses
 import shlex
 import sys
+from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -32,6 +36,13 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
+from export.measure import (
+    DEFAULT_CONES,
+    DEFAULT_SYNTHETIC_PAIRS,
+    default_datasets,
+    measure_command,
+    measure_folder,
+)
 from service.features.manifest import TOWER_FILES, ModelError, write_manifest
 from training.checkpoint import Checkpoint, load_checkpoint
 from training.networks import FeatureTower, TowerPair, same_padding
@@ -125,7 +136,11 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
 
 def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset: int,
                    command: str, checkpoint_path: str, overrides: dict[str, Any]) -> dict[str, Any]:
-    """The manifest (write_manifest fills ``files``), provenance and metrics copied from the checkpoint."""
+    """The manifest (write_manifest fills ``files``), provenance copied from the checkpoint.
+
+    ``metrics`` start empty: the checkpoint's figures come from the PyTorch towers, and a manifest carries
+    only figures measured on its own folder (:func:`export_folder` with ``datasets``).
+    """
     deploy = {**DEFAULTS, **checkpoint.deploy, **{k: v for k, v in overrides.items() if v is not None}}
     trained_range = deploy.get("trained_range")
     if trained_range is None:
@@ -159,15 +174,19 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
         "build": {"command": command, "date": datetime.now(UTC).isoformat(timespec="seconds"),
                   "checkpoint": checkpoint_path, "step": checkpoint.step,
                   "temperature": round(model.temperature, 6), "trainer_config": checkpoint.config},
-        "metrics": checkpoint.metrics,
+        "metrics": {},
     }
 
 
 def export_folder(checkpoint_path: str | Path, out: str | Path, *, opset: int = DEFAULT_OPSET,
-                  name: str | None = None, command: str = "", **overrides: Any) -> Path:
+                  name: str | None = None, command: str = "", datasets: Mapping[str, str] | None = None,
+                  threads: int | None = None, log: Callable[[str], Any] = lambda _: None,
+                  **overrides: Any) -> Path:
     """Write ``out``/left.onnx, right.onnx, manifest.json from a checkpoint; returns the manifest path.
 
     ``overrides`` (cost_scale, p1, p2, default_max, trained_range) replace the checkpoint's deploy values.
+    ``datasets`` (NAME -> ``adsm eval`` SPEC) are measured on the written folder for ``metrics``
+    (:func:`export.measure.measure_folder`); None or {}: ``metrics`` stay empty.
     """
     checkpoint = load_checkpoint(checkpoint_path)
     model = checkpoint.build_model()
@@ -178,7 +197,12 @@ def export_folder(checkpoint_path: str | Path, out: str | Path, *, opset: int = 
         (out / file_name).write_bytes(graph.SerializeToString(deterministic=True))
     manifest = build_manifest(checkpoint, model, name=name or _folder_name(out), opset=opset,
                               command=command, checkpoint_path=str(checkpoint_path), overrides=overrides)
-    return write_manifest(out, manifest)
+    path = write_manifest(out, manifest)
+    if datasets:
+        manifest["metrics"] = measure_folder(out, datasets, command=measure_command(out, datasets),
+                                             threads=threads, log=log)
+        path = write_manifest(out, manifest)
+    return path
 
 
 def _folder_name(folder: Path) -> str:
@@ -211,22 +235,35 @@ def build_parser() -> argparse.ArgumentParser:
                         help="manifest disparity.default_max (default: checkpoint, else 128)")
     parser.add_argument("--trained-range", type=int, nargs=2, metavar=("LOW", "HIGH"),
                         help="disparities seen in training (default: checkpoint; [0, 0] if untrained)")
+    parser.add_argument("--cones", type=Path, default=DEFAULT_CONES, metavar="PATH",
+                        help="Cones folder measured into metrics, if it exists (default: %(default)s)")
+    parser.add_argument("--synthetic", type=int, default=DEFAULT_SYNTHETIC_PAIRS, metavar="N",
+                        help="synthetic validation pairs measured into metrics (default: %(default)s; "
+                             "0: none)")
+    parser.add_argument("--no-measure", action="store_true",
+                        help="write empty metrics (measure later: python -m export.measure --model DIR "
+                             "--write)")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = shlex.join(["python", "-m", "export.to_onnx", *(sys.argv[1:] if argv is None else argv)])
+    datasets = {} if args.no_measure else default_datasets({}, cones=args.cones,
+                                                            synthetic_pairs=args.synthetic)
+    if not args.no_measure and not args.cones.is_dir():
+        print(f"export.to_onnx: no Cones folder at {args.cones}: metrics without it", file=sys.stderr)
     try:
         manifest_path = export_folder(args.checkpoint, args.out, opset=args.opset, name=args.name,
-                                      command=command, cost_scale=args.cost_scale, p1=args.p1, p2=args.p2,
+                                      command=command, datasets=datasets, log=print,
+                                      cost_scale=args.cost_scale, p1=args.p1, p2=args.p2,
                                       default_max=args.default_max, trained_range=args.trained_range)
         print(f"wrote {manifest_path.parent} (fp32)")
         if args.int8:
             from export.quantize import quantize_folder
 
             int8_path = quantize_folder(args.out, Path(f"{args.out}-int8"), calibration=args.calibration,
-                                        log=print)
+                                        datasets=datasets, log=print)
             print(f"wrote {int8_path.parent} (int8)")
     except (OSError, ValueError, ModelError) as error:
         print(f"export.to_onnx: error: {error}", file=sys.stderr)

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
+from export.measure import measure_folder
 from export.quantize import calibration_images, calibration_pairs, quantize_folder
 from export.to_onnx import export_folder, fold_tower, main, tower_to_onnx
 from service.cli import main as adsm
@@ -97,7 +98,8 @@ def test_exported_folder_has_a_valid_manifest_with_provenance(tmp_path: Path) ->
     assert manifest["name"] == "model_a"
     assert manifest["config"] == "29-1deconv3-4conv" and manifest["channels"] == 4
     assert manifest["receptive_field"] == 33  # dense field: patch 29 + 2 * (3 - 1)
-    assert manifest["training"] == PROVENANCE and manifest["metrics"] == {"synthetic": {"epe": 3.5}}
+    # The checkpoint's metrics (PyTorch towers) are not copied: a manifest carries only measured figures.
+    assert manifest["training"] == PROVENANCE and manifest["metrics"] == {}
     assert manifest["sgm"]["p1"] == 12.0 and manifest["sgm"]["p2"] == 160.0
     assert manifest["disparity"]["trained_range"] == [0, 96] and manifest["cost"]["scale"] == 128.0
     assert manifest["onnx"] == {**manifest["onnx"], "opset": 17, "precision": "fp32"}
@@ -156,11 +158,24 @@ def test_calibration_refuses_the_evaluation_pair_and_unknown_images(tmp_path: Pa
         calibration_pairs("synthetic:0")
 
 
+def _unstamped(metrics: dict) -> dict:
+    """Metrics without what changes from run to run (time taken, date, the command's wording)."""
+    return {name: {key: value for key, value in entry.items()
+                   if key not in ("seconds_per_pair", "date", "command")} for name, entry in metrics.items()}
+
+
 def test_int8_twin_is_qdq_and_records_its_accuracy(tmp_path: Path) -> None:
-    folder = _export(tmp_path, channels=4)
+    datasets = {"synthetic-validation": "synthetic:1"}
+    folder = _export(tmp_path, channels=4, datasets=datasets)
+    fp32 = load_manifest(folder)["metrics"]
+    assert set(fp32) == {"synthetic-validation"} and fp32["synthetic-validation"]["data"] == "synthetic:1"
+    assert fp32["synthetic-validation"]["command"].startswith("python -m export.measure --model ")
     lines: list[str] = []
     manifest = load_manifest(quantize_folder(folder, tmp_path / "int8", calibration="skimage:brick,rocket",
                                              log=lines.append).parent)
+    # Measured on the int8 folder itself, on the fp32 twin's data sets (not copied from the fp32 manifest).
+    fresh = measure_folder(tmp_path / "int8", datasets, command="test")
+    assert _unstamped(manifest["metrics"]) == _unstamped(fresh) != _unstamped(fp32)
     jsonschema.validate(manifest, json.loads(SCHEMA_PATH.read_text()))
     assert manifest["name"] == "model_a-int8" and manifest["onnx"]["precision"] == "int8"
     accuracy = manifest["onnx"]["quantization"]["accuracy_vs_fp32"]
