@@ -10,11 +10,13 @@ import pytest
 from PIL import Image
 
 from service.io import (
+    ALLOWED_FORMATS,
     ImageDecodeError,
     ImageTooLargeError,
     colorize,
     encode_disparity,
     format_for_path,
+    image_size,
     media_type,
     read_disparity,
     read_image,
@@ -302,3 +304,46 @@ def test_colorize_fixed_range_clips():
     rgb = colorize(np.array([[0.5, 100.0]], np.float32), min_disparity=1, max_disparity=64)
     np.testing.assert_array_equal(rgb[0, 0], TURBO[0])
     np.testing.assert_array_equal(rgb[0, 1], TURBO[-1])
+
+
+# --- issue 15: containers whose reader decodes inside open() -----------------------------------------------
+
+
+def _ico_holding(image: bytes) -> bytes:
+    entry = bytes([0, 0, 0, 0]) + (1).to_bytes(2, "little") + (32).to_bytes(2, "little")
+    return b"\0\0\1\0\1\0" + entry + len(image).to_bytes(4, "little") + (22).to_bytes(4, "little") + image
+
+
+@pytest.mark.parametrize("container", ["ICO", "ICNS"])
+def test_containers_that_decode_in_open_are_refused_without_running_their_reader(monkeypatch, container):
+    from PIL import IcnsImagePlugin, IcoImagePlugin
+
+    def never(self):
+        raise AssertionError(f"{container} reader ran")
+
+    monkeypatch.setattr(IcoImagePlugin.IcoImageFile, "_open", never)
+    monkeypatch.setattr(IcnsImagePlugin.IcnsImageFile, "_open", never)
+    png = _encode(Image.new("L", (64, 64)), "PNG")
+    data = _ico_holding(png) if container == "ICO" else (
+        b"icns" + (16 + len(png)).to_bytes(4, "big") + b"ic10" + (8 + len(png)).to_bytes(4, "big") + png
+    )
+    for read in (read_image, image_size):
+        with pytest.raises(ImageDecodeError, match="refused format"):
+            read(data, max_pixels=2_100_000, name="left")
+
+
+@pytest.mark.parametrize("fmt", ["PNG", "JPEG", "PPM", "TIFF", "BMP", "WEBP", "GIF"])
+def test_allowed_formats_open_without_decoding(fmt):
+    # The pixel limit is judged on the header: open() must not have decoded anything yet.
+    data = _encode(Image.fromarray(RNG.integers(0, 256, (40, 30, 3), dtype=np.uint8)), fmt)
+    assert fmt in ALLOWED_FORMATS
+    with Image.open(io.BytesIO(data), formats=ALLOWED_FORMATS) as image:
+        assert image._im is None, fmt
+    assert image_size(data) == (40, 30)
+
+
+def test_image_size_follows_exif_orientation():
+    exif = Image.Exif()
+    exif[0x0112] = 6  # displayed turned 90 degrees: width and height swap
+    data = _encode(Image.new("RGB", (30, 10)), "JPEG", exif=exif)
+    assert image_size(data) == read_image(data).shape[:2] == (30, 10)

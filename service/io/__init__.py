@@ -10,9 +10,10 @@ from service.io.disparity import (
     read_disparity,
     write_disparity,
 )
-from service.io.images import ImageDecodeError, ImageTooLargeError, read_image
+from service.io.images import ALLOWED_FORMATS, ImageDecodeError, ImageTooLargeError, image_size, read_image
 
 __all__ = [
+    "ALLOWED_FORMATS",
     "FORMATS",
     "MEDIA_TYPES",
     "ImageDecodeError",
@@ -21,6 +22,7 @@ __all__ = [
     "colorize_png",
     "encode_disparity",
     "format_for_path",
+    "image_size",
     "media_type",
     "read_disparity",
     "read_image",

@@ -1,14 +1,21 @@
-"""Decode stereo input images (PNG, JPEG, PPM/PGM, TIFF, ...) to uint8 RGB arrays (H, W, 3).
+"""Decode stereo input images (PNG, JPEG, PPM/PGM, TIFF, BMP, WebP, GIF) to uint8 RGB arrays (H, W, 3).
 
 The pixel count is checked from the header before any pixel is decoded, so a service can refuse a
-decompression bomb cheaply. EXIF orientation is applied (a phone JPEG is matched as it is displayed),
+decompression bomb cheaply. That only holds for formats whose ``Image.open`` reads a header and nothing
+else: Pillow's ICO and ICNS readers decode their largest embedded image inside ``open`` (an ICO of
+656 KB holding a 13000 x 13000 PNG costs 640 MiB before any check), so only :data:`ALLOWED_FORMATS` are
+opened at all; every other format is refused as unknown without running its reader.
+
+EXIF orientation is applied (a phone JPEG is matched as it is displayed),
 grey is expanded to three channels, 16-bit samples keep their high byte (>> 8: scaling, not clipping),
 alpha is dropped (not composited: matching needs the recorded colour), palette and CMYK are converted.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +25,13 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 _TO_RGB = {"RGB", "RGBA", "RGBa", "RGBX", "P", "PA", "CMYK", "YCbCr", "LAB", "HSV"}
 _TO_GREY = {"L", "LA", "La", "1"}
 _SIXTEEN_BIT = {"I;16", "I;16L", "I;16B", "I;16N", "I"}
+# Pillow plugins whose open() parses a header only (checked for each in tests/test_io.py): single-image
+# formats, and multi-frame ones whose frames are decoded lazily (TIFF pages, GIF frames; JPEG opens MPO).
+ALLOWED_FORMATS = ("PNG", "JPEG", "PPM", "TIFF", "BMP", "WEBP", "GIF")
+_ALLOWED_NAMES = "PNG, JPEG, PPM/PGM, TIFF, BMP, WebP or GIF"
+_EXIF_ORIENTATION = 0x0112
+# EXIF orientations that swap width and height (transposed or rotated by 90 degrees).
+_SWAPS_AXES = {5, 6, 7, 8}
 
 
 class ImageDecodeError(ValueError):
@@ -28,17 +42,12 @@ class ImageTooLargeError(ImageDecodeError):
     """The image header announces more pixels than allowed (checked before decoding)."""
 
 
-def read_image(
-    source: bytes | str | Path, *, max_pixels: int | None = None, name: str = "image"
-) -> np.ndarray:
-    """Decode ``source`` (encoded bytes or a file path) to a C-contiguous uint8 array (H, W, 3).
-
-    ``max_pixels`` bounds width x height (None: only Pillow's decompression-bomb guard, ~179 Mpx, applies);
-    ``name`` is used in error messages (e.g. "left"). A missing path raises FileNotFoundError.
-    """
+@contextlib.contextmanager
+def _opened(source: bytes | str | Path, max_pixels: int | None, name: str) -> Iterator[Image.Image]:
+    """The image with its header read and its pixel count checked; no pixel decoded yet."""
     stream = io.BytesIO(source) if isinstance(source, bytes | bytearray | memoryview) else Path(source)
     try:
-        image = Image.open(stream)  # reads the header only
+        image = Image.open(stream, formats=ALLOWED_FORMATS)  # reads the header only
     except Image.DecompressionBombError as error:  # Pillow's own header check, far above any stereo pair
         raise ImageTooLargeError(f"{name}: {_reason(error)}") from error
     except UnidentifiedImageError as error:  # its message names the stream object, not the field
@@ -53,6 +62,35 @@ def read_image(
             )
         if width == 0 or height == 0:
             raise ImageDecodeError(f"{name}: empty image ({width} x {height})")
+        yield image
+
+
+def image_size(
+    source: bytes | str | Path, *, max_pixels: int | None = None, name: str = "image"
+) -> tuple[int, int]:
+    """``(height, width)`` of the array :func:`read_image` would return, from the header alone.
+
+    Raises as :func:`read_image` does for an unknown format or too many pixels; decodes nothing, so a
+    caller can plan memory (service/memory.py) before the pixels exist.
+    """
+    with _opened(source, max_pixels, name) as image:
+        width, height = image.size
+        try:
+            orientation = image.getexif().get(_EXIF_ORIENTATION)
+        except (OSError, ValueError, SyntaxError, EOFError):
+            orientation = None  # exif_transpose ignores an unreadable EXIF block too
+        return (width, height) if orientation in _SWAPS_AXES else (height, width)
+
+
+def read_image(
+    source: bytes | str | Path, *, max_pixels: int | None = None, name: str = "image"
+) -> np.ndarray:
+    """Decode ``source`` (encoded bytes or a file path) to a C-contiguous uint8 array (H, W, 3).
+
+    ``max_pixels`` bounds width x height (None: only Pillow's decompression-bomb guard, ~179 Mpx, applies);
+    ``name`` is used in error messages (e.g. "left"). A missing path raises FileNotFoundError.
+    """
+    with _opened(source, max_pixels, name) as image:
         try:
             image.seek(0)  # first frame of a multi-page TIFF or an animation
             image = ImageOps.exif_transpose(image)
@@ -83,7 +121,7 @@ def _to_rgb(image: Image.Image, name: str) -> np.ndarray:
 def _unidentified(source: bytes | str | Path) -> str:
     if isinstance(source, bytes | bytearray | memoryview) and len(source) == 0:
         return "empty file, 0 bytes"
-    return "unknown format; send PNG, JPEG, PPM/PGM or TIFF"
+    return f"unknown or refused format; send {_ALLOWED_NAMES}"
 
 
 def _reason(error: BaseException) -> str:
