@@ -4,10 +4,12 @@
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
-:class:`MatchOptions`. Peak memory is about two int16 cost volumes (``H * W * D * 4`` bytes): the raw
-and the aggregated volume are the only volume-sized arrays, and the features are dropped as soon as the
-cost volume exists. Both volumes live in a :class:`~service.cost.VolumeWorkspace` kept between calls
-(``reuse_volumes=False`` allocates them per call instead; see that module for the measurement).
+:class:`MatchOptions`. Peak memory follows service/memory.py (images, features, the towers' tiles, two
+int16 cost volumes, results), checked against ``max_request_bytes`` before anything is allocated. The
+towers run in tiles (service/features/tiles.py) so that one ONNX run's work area is bounded for every
+aspect ratio; the features are dropped as soon as the cost volume exists. Both volumes live in a
+:class:`~service.cost.VolumeWorkspace` kept between calls (``reuse_volumes=False`` allocates them per
+call instead; see that module for the measurement).
 """
 
 from __future__ import annotations
@@ -25,12 +27,19 @@ from service import jit
 from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, default_model_dir
+from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
+from service.features.towers import MAX_THREADS
 from service.filling import fill_invalid
+from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, aggregate
 from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
 
-__all__ = ["MatchOptions", "Matcher", "StereoResult", "Validity"]
+__all__ = ["MatchOptions", "Matcher", "MemoryLimitError", "StereoResult", "Validity"]
+
+
+class MemoryLimitError(ValueError):
+    """The request's memory plan (service.memory) is over the matcher's limit; nothing was allocated."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -70,32 +79,6 @@ class StereoResult:
     timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
 
 
-# Largest tower run, in pixels x feature channels. ONNX Runtime's arena keeps the buffers of the largest
-# run, and they grow with the channel count (int8 convs at 64 channels: ~1-2 KB per pixel), so larger
-# images go through the towers in row strips that overlap by half the receptive field: exact features,
-# ~10-15 % more tower work for 2 strips. The budget is 256 Ki pixels at 64 channels (adsm-paper-int8 at
-# 375x1242: 2 strips, Matcher peak RSS 1847 -> 1500 MiB) and 1 Mi pixels at 16 (adsm-fast-int8 at
-# 375x1242 runs whole: towers 0.56 -> 0.47 s, tower peak RSS 680 -> 815 MiB; docs/performance.md).
-TOWER_STRIP_CELLS = 64 * 256 * 1024
-
-
-def tower_strips(height: int, width: int, halo: int, *, channels: int) -> list[tuple[int, int, int, int]]:
-    """Row strips ``(run_top, run_bottom, keep_top, keep_bottom)`` covering ``height`` rows.
-
-    The towers run on rows ``run_top:run_bottom``; rows ``keep_top:keep_bottom`` of the image are kept,
-    each at least ``halo`` rows from a strip edge that is not an image edge, so its receptive field lies
-    inside the strip and its features equal those of the whole image.
-    """
-    core = max(TOWER_STRIP_CELLS // max(width * channels, 1), 2 * halo + 1)
-    count = -(-height // core)
-    core = -(-height // count)  # equal strips
-    strips = []
-    for keep_top in range(0, height, core):
-        keep_bottom = min(keep_top + core, height)
-        strips.append((max(keep_top - halo, 0), min(keep_bottom + halo, height), keep_top, keep_bottom))
-    return strips
-
-
 def _check_images(left: Any, right: Any) -> None:
     for side, image in (("left", left), ("right", right)):
         expected = f"{side} image must be a uint8 array of shape (H, W, 3)"
@@ -113,11 +96,18 @@ class Matcher:
     """Stereo matcher of one model folder. Not thread-safe: run one call at a time per instance."""
 
     def __init__(
-        self, towers: FeatureTowers, *, threads: int | None = None, reuse_volumes: bool = True
+        self,
+        towers: FeatureTowers,
+        *,
+        threads: int | None = None,
+        reuse_volumes: bool = True,
+        max_request_bytes: int | None = None,
     ) -> None:
-        if threads is not None and threads < 1:
-            raise ValueError(f"threads must be >= 1, got {threads}")
+        if threads is not None and not 1 <= threads <= MAX_THREADS:
+            raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {threads}")
         self.towers = towers
+        # None: no limit (a library caller owns its memory); the service and the CLI set one.
+        self.max_request_bytes = max_request_bytes
         self.threads = threads
         self.manifest: dict[str, Any] = towers.manifest
         self.workspace = VolumeWorkspace() if reuse_volumes else None
@@ -130,11 +120,12 @@ class Matcher:
         threads: int | None = None,
         providers: Sequence[str] | None = None,
         reuse_volumes: bool = True,
+        max_request_bytes: int | None = None,
     ) -> Matcher:
         """Load (and sha256-verify) a model folder; ``None`` is the default shipped model."""
         folder = default_model_dir() if folder is None else Path(folder)
         towers = FeatureTowers(folder, threads=threads, providers=providers)
-        return cls(towers, threads=threads, reuse_volumes=reuse_volumes)
+        return cls(towers, threads=threads, reuse_volumes=reuse_volumes, max_request_bytes=max_request_bytes)
 
     def warmup(self) -> None:
         """Compile or load every Numba kernel and run the towers once, so the first request is fast."""
@@ -143,19 +134,47 @@ class Matcher:
         self.towers.warmup()
 
     def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tower features of both views, in row strips when the image is larger than the strip budget."""
+        """Tower features of both views, in tiles when one run would exceed the tower work budget."""
         height, width = left.shape[:2]
-        channels = int(self.manifest["channels"])
-        strips = tower_strips(height, width, int(self.manifest["receptive_field"]) // 2, channels=channels)
-        if len(strips) == 1:
+        halo = halo_of(self.manifest)
+        budget = TOWER_WORK_BYTES // work_bytes_per_pixel(self.manifest)
+        tiles = tower_tiles(height, width, halo, budget_pixels=budget)
+        if len(tiles) == 1:
             return self.towers(left, right)
+        channels = int(self.manifest["channels"])
         features = (np.empty((channels, height, width), np.float32), np.empty((channels, height, width),
                                                                               np.float32))
-        for run_top, run_bottom, keep_top, keep_bottom in strips:
-            strip = self.towers(left[run_top:run_bottom], right[run_top:run_bottom])
-            for whole, part in zip(features, strip, strict=True):
-                whole[:, keep_top:keep_bottom] = part[:, keep_top - run_top : keep_bottom - run_top]
+        for tile in tiles:
+            rows, columns = slice(tile.run_top, tile.run_bottom), slice(tile.run_left, tile.run_right)
+            part = self.towers(left[rows, columns], right[rows, columns])
+            keep_rows = slice(tile.keep_top - tile.run_top, tile.keep_bottom - tile.run_top)
+            keep_columns = slice(tile.keep_left - tile.run_left, tile.keep_right - tile.run_left)
+            for whole, piece in zip(features, part, strict=True):
+                whole[:, tile.keep_top:tile.keep_bottom, tile.keep_left:tile.keep_right] = piece[
+                    :, keep_rows, keep_columns
+                ]
+            del part
         return features
+
+    def disparities(self, width: int, options: MatchOptions) -> int:
+        """The range a call searches: the option's, else the model's default, clipped to the width."""
+        return min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+
+    def plan(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
+        """Peak memory of a call on an ``height x width`` pair (service/memory.py), before any allocation."""
+        options = MatchOptions() if options is None else options
+        return plan_request(height, width, self.disparities(width, options), self.manifest)
+
+    def check_memory(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
+        """The plan of a call; raise :class:`MemoryLimitError` when it is over ``max_request_bytes``."""
+        plan = self.plan(height, width, options)
+        if self.max_request_bytes is not None and plan.peak_bytes > self.max_request_bytes:
+            raise MemoryLimitError(
+                f"{width} x {height} pixels x {plan.disparities} disparities would need "
+                f"{plan.describe()}, over the limit of {self.max_request_bytes / 2**20:.0f} MiB per request; "
+                "send smaller images or lower max_disparity"
+            )
+        return plan
 
     def __call__(
         self, left: np.ndarray, right: np.ndarray, options: MatchOptions | None = None
@@ -166,7 +185,7 @@ class Matcher:
             raise ValueError(f"options must be MatchOptions, got {type(options).__name__}")
         _check_images(left, right)
         width = left.shape[1]
-        disparities = min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+        disparities = self.check_memory(left.shape[0], width, options).disparities
         p1 = float(self.manifest["sgm"]["p1"] if options.p1 is None else options.p1)
         p2 = float(self.manifest["sgm"]["p2"] if options.p2 is None else options.p2)
         jit.set_threads(self.threads)

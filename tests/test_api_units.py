@@ -35,7 +35,7 @@ def test_settings_from_env() -> None:
         ({"ADSM_WARMUP": "perhaps"}, "ADSM_WARMUP must be true or false"),
         ({"ADSM_MAX_PIXELS": "0"}, "max_pixels must be >= 1"),
         ({"ADSM_QUEUE_SIZE": "-1"}, "queue_size must be >= 0"),
-        ({"ADSM_THREADS": "0"}, "threads must be >= 1"),
+        ({"ADSM_THREADS": "0"}, r"threads must be in 1\.\.256"),
         ({"ADSM_BODY_TIMEOUT_S": "soon"}, "ADSM_BODY_TIMEOUT_S must be a number"),
         ({"ADSM_BODY_TIMEOUT_S": "0"}, "body_timeout_s must be a positive, finite number of seconds"),
         ({"ADSM_BODY_TIMEOUT_S": "-5"}, "body_timeout_s must be a positive, finite number of seconds"),
@@ -112,3 +112,37 @@ def test_serve_refuses_bad_options(capsys, monkeypatch) -> None:
     assert main(["serve"]) == 1
     error = capsys.readouterr().err
     assert error.startswith("adsm: error: body_timeout_s must be a positive") and error.count("\n") == 1
+
+
+def test_model_manifest_hides_absolute_paths() -> None:
+    from service.api.routes_ops import public_manifest
+
+    manifest = {"training": {"command": "python -m training.train --out /home/alice/runs/x --init-from "
+                             "runs/fast/best.pt --data kitti2015:/data/kitti/training"},
+                "notes": ["C:\\Users\\bob\\m.pt", "~/models/q/", "x - d < 0 -> +scale, 1/4 w/o"],
+                "channels": 16}
+    public = public_manifest(manifest)
+    text = str(public)
+    for secret in ("/home/alice", "/data/kitti", "Users\\\\bob", "~/models"):
+        assert secret not in text, text
+    assert "<path>/x" in text and "runs/fast/best.pt" in text and public["notes"][2] == manifest["notes"][2]
+    assert public["channels"] == 16
+
+
+def test_kubernetes_memory_limit_covers_the_documented_bound() -> None:
+    import yaml
+
+    from service.features import default_model_dir, load_manifest
+    from service.memory import memory_bound
+
+    deployment = next(yaml.safe_load_all((Path(__file__).parents[1] / "docker" / "k8s.yaml").read_text()))
+    container = deployment["spec"]["template"]["spec"]["containers"][0]
+    limit = container["resources"]["limits"]["memory"]
+    units = {"Mi": 2**20, "Gi": 2**30}
+    limit_bytes = int(limit[:-2]) * units[limit[-2:]]
+    env = {item["name"]: item["value"] for item in container["env"]}
+    settings = Settings.from_env(env)
+    idle = 250 * 2**20  # RSS of the served default model after warm-up (docs/service.md#memory)
+    bound = memory_bound(load_manifest(default_model_dir()), max_pixels=settings.max_pixels,
+                         max_cost_cells=settings.max_cost_cells)
+    assert limit_bytes >= idle + bound, (limit, (idle + bound) / 2**20)

@@ -70,6 +70,28 @@ def zlib_bomb() -> bytes:
     return encode(Image.new("L", (4000, 4000)), optimize=True)
 
 
+def ico_holding(image: bytes) -> bytes:
+    """An ICO whose one entry is ``image`` (a PNG): Pillow's ICO reader would decode it inside open()."""
+    entry = bytes([0, 0, 0, 0]) + (1).to_bytes(2, "little") + (32).to_bytes(2, "little")
+    entry += len(image).to_bytes(4, "little") + (22).to_bytes(4, "little")
+    return b"\0\0\1\0\1\0" + entry + image
+
+
+def icns_holding(image: bytes) -> bytes:
+    """An ICNS whose one 'ic10' element is ``image`` (a PNG)."""
+    element = b"ic10" + (8 + len(image)).to_bytes(4, "big") + image
+    return b"icns" + (8 + len(element)).to_bytes(4, "big") + element
+
+
+def multipart_body(boundary: str = "x") -> bytes:
+    parts = b"".join(
+        f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"; filename="{name}.png"\r\n'
+        f"Content-Type: image/png\r\n\r\n".encode() + data + b"\r\n"
+        for name, data in (("left", encode(LEFT)), ("right", encode(RIGHT)))
+    )
+    return parts + f"--{boundary}--\r\n".encode()
+
+
 def exif_rotated_jpeg(image: np.ndarray) -> bytes:
     """JPEG stored turned 90 degrees counter-clockwise with EXIF orientation 6 (display: turn clockwise)."""
     exif = Image.Exif()
@@ -242,6 +264,28 @@ CATALOG = [
     Case("unknown format", 400, ("format",), params={**VALID_QUERY, "format": "jpeg"}),
     Case("format of another route", 400, ("format",), path="/depth",
          params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "format": "pfm"}),
+    # --- issue 15: sizes that pass the pixel limit but not the work or memory model, containers, params -----
+    # Header-only PNGs (decoding them would fail): a 413 shows the plan was judged before decoding.
+    Case("one row as wide as the pixel limit", 413, ("padded pixels", "square image of ADSM_MAX_PIXELS"),
+         files=files(png_claiming(HEIGHT * WIDTH, 1), png_claiming(HEIGHT * WIDTH, 1))),
+    Case("one column as tall as the pixel limit", 413, ("padded pixels",), params={},
+         files=files(png_claiming(1, HEIGHT * WIDTH), png_claiming(1, HEIGHT * WIDTH))),
+    Case("eight rows", 413, ("padded pixels",),
+         files=files(png_claiming(HEIGHT * WIDTH // 8, 8), png_claiming(HEIGHT * WIDTH // 8, 8))),
+    Case("ico holding a huge png", 415, ("left", "refused format"),
+         files=files(ico_holding(png_claiming(13000, 13000)), encode(RIGHT))),
+    Case("icns holding a huge png", 415, ("right", "refused format"),
+         files=files(encode(LEFT), icns_holding(png_claiming(13000, 13000)))),
+    Case("repeated query parameter", 400, ("'max_disparity' is given more than once",),
+         params=[("max_disparity", 16), ("max_disparity", 32)]),
+    Case("fill without lr_check", 400, ("fill=true needs lr_check=true",),
+         params={**VALID_QUERY, "lr_check": "false", "fill": "true"}),
+    Case("lr_check off, fill unset", 200, params={**VALID_QUERY, "lr_check": "false"},
+         check=shape_is(64, 96)),
+    Case("focal_px and baseline_m tiny", 400, ("focal_px", "baseline_m"), path="/depth",
+         params={**VALID_QUERY, "focal_px": "1e-30", "baseline_m": "1e-30"}),
+    Case("upper-case multipart media type", 200, content=multipart_body(),
+         headers={"Content-Type": "MULTIPART/FORM-DATA; boundary=x"}, check=png16_answer),
     # --- Accept: anything unknown gets the documented default, errors stay JSON -----------------------------
     Case("foreign accept", 200, headers={"Accept": "application/json"}, check=png16_answer),
     Case("malformed accept", 200, headers={"Accept": ";;q=x, /,*/*;q=abc"}, check=png16_answer),

@@ -1,4 +1,4 @@
-"""Speed-driven code paths (issue 6): tower row strips, the shared ORT arena, warm-up coverage.
+"""Speed- and memory-driven code paths (issues 6, 15): tower tiles, the shared ORT arena, warm-up coverage.
 
 Each path must give the same answer as the simple one it replaces; speed itself is measured by
 ``python -m bench suite``, not here.
@@ -10,49 +10,63 @@ import numpy as np
 import pytest
 
 from service import matcher as matcher_module
-from service.features import FeatureTowers, default_model_dir
-from service.matcher import Matcher, MatchOptions, tower_strips
+from service.features import FeatureTowers, default_model_dir, load_manifest
+from service.features import tiles as tiles_module
+from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
+from service.matcher import Matcher, MatchOptions
 
 
 @pytest.mark.parametrize(
-    ("height", "width", "halo"), [(375, 1242, 18), (1, 5, 4), (50, 20000, 4), (97, 3000, 0)]
+    ("height", "width", "halo"),
+    [(375, 1242, 18), (1, 5, 4), (50, 20000, 4), (97, 3000, 0), (8, 262144, 22), (2100, 1, 22), (3, 700, 22)],
 )
-def test_tower_strips_cover_every_row_once_with_halo(monkeypatch, height, width, halo):
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", 20_000 * 16)
-    strips = tower_strips(height, width, halo, channels=16)
-    kept = np.zeros(height, int)
-    for run_top, run_bottom, keep_top, keep_bottom in strips:
-        kept[keep_top:keep_bottom] += 1
-        assert 0 <= run_top <= keep_top < keep_bottom <= run_bottom <= height
-        # Every kept row is `halo` rows inside its strip, unless the strip edge is the image edge.
-        assert keep_top - run_top >= halo or run_top == 0
-        assert run_bottom - keep_bottom >= halo or run_bottom == height
+def test_tower_tiles_cover_every_pixel_once_with_halo(height, width, halo):
+    budget = 20_000
+    tiles = tower_tiles(height, width, halo, budget_pixels=budget)
+    kept = np.zeros((height, width), np.int8)
+    shapes = set()
+    for tile in tiles:
+        kept[tile.keep_top:tile.keep_bottom, tile.keep_left:tile.keep_right] += 1
+        assert 0 <= tile.run_top <= tile.keep_top < tile.keep_bottom <= tile.run_bottom <= height
+        assert 0 <= tile.run_left <= tile.keep_left < tile.keep_right <= tile.run_right <= width
+        # Every kept pixel is `halo` inside its run, unless the run's edge is the image's edge.
+        assert tile.keep_top - tile.run_top >= halo or tile.run_top == 0
+        assert tile.run_bottom - tile.keep_bottom >= halo or tile.run_bottom == height
+        assert tile.keep_left - tile.run_left >= halo or tile.run_left == 0
+        assert tile.run_right - tile.keep_right >= halo or tile.run_right == width
+        assert tile.padded_pixels(halo) <= max(budget, (1 + 4 * halo) ** 2)
+        shapes.add((tile.run_bottom - tile.run_top, tile.run_right - tile.run_left))
     assert (kept == 1).all()
+    assert len(shapes) == 1  # equal runs: ONNX Runtime's arena reuses one run's chunks
 
 
-def test_strip_budget_scales_with_channels():
-    # KITTI size: a 16-channel tower runs whole, a 64-channel one in 2 strips (its arena is 4x larger).
-    assert len(tower_strips(375, 1242, 18, channels=16)) == 1
-    assert len(tower_strips(375, 1242, 18, channels=64)) == 2
+def test_tile_budget_follows_the_models_work_per_pixel():
+    # KITTI size: the default model's towers run whole, adsm-paper-int8's in 2 strips (1.3x the work).
+    for name, count in (("adsm-fast-int8", 1), ("adsm-paper-int8", 2)):
+        manifest = load_manifest(default_model_dir().parent / name)
+        budget = TOWER_WORK_BYTES // work_bytes_per_pixel(manifest)
+        assert len(tower_tiles(375, 1242, halo_of(manifest), budget_pixels=budget)) == count
 
 
 @pytest.mark.parametrize("model", ["ncc-baseline", "default"])
-def test_strip_features_equal_whole_image_features(monkeypatch, model):
+def test_tiled_features_equal_whole_image_features(monkeypatch, model):
     folder = None if model == "default" else default_model_dir().parent / model
     matcher = Matcher.from_folder(folder, threads=2)
-    halo = int(matcher.manifest["receptive_field"]) // 2
-    height, width = 4 * (2 * halo + 1) + 3, 40  # strips of the smallest core (2 * halo + 1 rows): 5 of them
+    halo = halo_of(matcher.manifest)
+    height, width = 3 * (2 * halo + 1) + 3, 4 * (2 * halo + 1) + 5
     rng = np.random.default_rng(3)
     left, right = (rng.integers(0, 256, (height, width, 3), dtype=np.uint8) for _ in range(2))
     whole = matcher.towers(left, right)
-    channels = int(matcher.manifest["channels"])
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", width * channels)  # the smallest strips
-    assert len(tower_strips(height, width, halo, channels=channels)) == 5
-    strips = matcher._features(left, right)
-    for a, b in zip(whole, strips, strict=True):
+    per_pixel = tiles_module.work_bytes_per_pixel(matcher.manifest)
+    budget = 2 * (1 + 4 * halo) ** 2  # small tiles, with cores of a few pixels
+    monkeypatch.setattr(matcher_module, "TOWER_WORK_BYTES", per_pixel * budget)
+    tiles = tower_tiles(height, width, halo, budget_pixels=budget)
+    assert len({tile.run_top for tile in tiles}) > 2 and len({tile.run_left for tile in tiles}) > 2
+    tiled = matcher._features(left, right)
+    for a, b in zip(whole, tiled, strict=True):
         np.testing.assert_allclose(b, a, atol=1e-5)
     result = matcher(left, right, MatchOptions(max_disparity=16))
-    monkeypatch.setattr(matcher_module, "TOWER_STRIP_CELLS", 10**12)
+    monkeypatch.setattr(matcher_module, "TOWER_WORK_BYTES", 10**15)
     reference = matcher(left, right, MatchOptions(max_disparity=16))
     np.testing.assert_array_equal(result.validity, reference.validity)
     np.testing.assert_allclose(result.disparity, reference.disparity, atol=1e-3, equal_nan=True)

@@ -8,7 +8,9 @@ The rule (documented in the OpenAPI schema and docs/service.md):
   one code to handle; ``errors`` then lists each problem with its location.
 - 408: the body did not arrive in full within ``ADSM_BODY_TIMEOUT_S`` (a stalled or trickled upload).
 - 413: body over the byte limit, an image over the pixel limit (checked before decoding), or a job
-  whose cost volume (width x height x disparities) is over the cell limit.
+  whose cost volume (width x height x disparities) is over the cell limit, whose memory plan is over
+  the per-request byte limit or whose tower work is over its limit (service/memory.py), all from the
+  image headers.
 - 415: a part that is not a decodable image.
 - 503 + Retry-After: the inference queue is full, or the model is still warming up.
 """
@@ -31,8 +33,9 @@ class ErrorBody(BaseModel):
 _DESCRIPTIONS = {
     400: "Bad parameters, missing or malformed multipart fields, or images of different sizes.",
     408: "The request body did not arrive in full within ADSM_BODY_TIMEOUT_S seconds.",
-    413: "Request body over ADSM_MAX_BODY_BYTES, an image over ADSM_MAX_PIXELS, or a cost volume "
-    "(width x height x disparities) over ADSM_MAX_COST_CELLS.",
+    413: "Request body over ADSM_MAX_BODY_BYTES, an image over ADSM_MAX_PIXELS, a cost volume "
+    "(width x height x disparities) over ADSM_MAX_COST_CELLS, a memory plan over ADSM_MAX_REQUEST_BYTES, "
+    "or an image so elongated that its feature towers would compute over twice a square image's work.",
     415: "A multipart part is not a decodable image (PNG, JPEG, PPM/PGM, TIFF, ...).",
     503: "The inference queue is full or the model is warming up; retry after `Retry-After` seconds.",
 }

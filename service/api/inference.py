@@ -1,9 +1,11 @@
 """The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
 
 Pipeline of a stereo request: admission (503 at once when the queue is full) -> multipart body (408
-when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/body_timeout.py) -> decode both images in a
-thread (pixel limit before decoding) -> wait for the inference slot -> match in a thread -> the route
-encodes. Each step's seconds go into the Server-Timing header and the per-stage histogram.
+when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/body_timeout.py) -> both image headers:
+sizes, pixel limit, then the request's memory plan (service/memory.py) against ADSM_MAX_REQUEST_BYTES
+and its tower work against ADSM_MAX_PIXELS, all before a pixel is decoded -> decode both images in a
+thread -> wait for the inference slot -> match in a thread -> the route encodes. Each step's seconds go
+into the Server-Timing header and the per-stage histogram.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from starlette.requests import ClientDisconnect
 from service.api.metrics import ServiceMetrics
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
 from service.api.settings import Settings
-from service.io import ImageDecodeError, ImageTooLargeError, read_image
+from service.io import ImageDecodeError, ImageTooLargeError, image_size, read_image
 from service.matcher import Matcher, MatchOptions, StereoResult
+from service.memory import TOWER_WORK_FACTOR, plan_request, tower_work_limit
 
 logger = logging.getLogger("service.api")
 
@@ -95,26 +98,11 @@ class InferenceService:
     async def _match_admitted(self, request: Request, options: MatchOptions, admitted: float) -> StereoMatch:
         left_bytes, right_bytes = await _read_pair(request)
         started = time.perf_counter()
+        height, width = await run_in_threadpool(self._pair_size, left_bytes, right_bytes)
+        self._check_request(height, width, options)
         left, right = await run_in_threadpool(self._decode_pair, left_bytes, right_bytes)
         timings = {"decode": time.perf_counter() - started}
-        if left.shape != right.shape:
-            raise HTTPException(
-                400, f"left and right images differ in size: {left.shape[1]} x {left.shape[0]} vs "
-                f"{right.shape[1]} x {right.shape[0]} (width x height); the pair must be rectified",
-            )
-        if options.max_disparity is not None and options.max_disparity > self.settings.max_disparity:
-            raise HTTPException(
-                400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
-                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
-            )
-        width = left.shape[1]
-        if options.max_disparity is not None and options.max_disparity > width:
-            # Only the model's default range is clipped to the width; an explicit one asks for the impossible.
-            raise HTTPException(
-                400, f"max_disparity {options.max_disparity} exceeds the image width {width}: at most "
-                f"{width} disparities (0..{width - 1}) fit",
-            )
-        self._check_cost_volume(left.shape[0], left.shape[1], options)
+        del left_bytes, right_bytes
         queued = time.perf_counter()
         try:
             began, result = await self.slot.run(
@@ -130,7 +118,19 @@ class InferenceService:
         timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
         return StereoMatch(result=result, left=left, timings=timings, started=admitted)
 
-    def _check_cost_volume(self, height: int, width: int, options: MatchOptions) -> None:
+    def _check_request(self, height: int, width: int, options: MatchOptions) -> None:
+        """Every size limit of a request, from the image headers: nothing is allocated before they pass."""
+        if options.max_disparity is not None and options.max_disparity > self.settings.max_disparity:
+            raise HTTPException(
+                400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
+                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
+            )
+        if options.max_disparity is not None and options.max_disparity > width:
+            # Only the model's default range is clipped to the width; an explicit one asks for the impossible.
+            raise HTTPException(
+                400, f"max_disparity {options.max_disparity} exceeds the image width {width}: at most "
+                f"{width} disparities (0..{width - 1}) fit",
+            )
         # The matcher's rule for the range: the request's, else the model's default, clipped to the width.
         disparities = min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
         cells = height * width * disparities
@@ -140,6 +140,40 @@ class InferenceService:
                 f"exceeds this server's limit of {self.settings.max_cost_cells} (ADSM_MAX_COST_CELLS); "
                 "lower max_disparity or send smaller images",
             )
+        plan = plan_request(height, width, disparities, self.manifest)
+        if plan.peak_bytes > self.settings.max_request_bytes:
+            raise HTTPException(
+                413, f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, "
+                f"over this server's limit of {self.settings.max_request_bytes} bytes per request "
+                "(ADSM_MAX_REQUEST_BYTES); send smaller images or lower max_disparity",
+            )
+        work_limit = tower_work_limit(self.manifest, max_pixels=self.settings.max_pixels)
+        if plan.work_pixels > work_limit:
+            raise HTTPException(
+                413, f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
+                f"pixels (each side is padded by half the receptive field), over this server's limit of "
+                f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of ADSM_MAX_PIXELS); "
+                "images only a few pixels tall or wide cost far more than their size: send a less "
+                "elongated image",
+            )
+
+    def _pair_size(self, left_bytes: bytes, right_bytes: bytes) -> tuple[int, int]:
+        """The pair's (height, width) from the headers; 400 when the two differ."""
+        sizes = []
+        for name, data in (("left", left_bytes), ("right", right_bytes)):
+            try:
+                sizes.append(image_size(data, max_pixels=self.settings.max_pixels, name=name))
+            except ImageTooLargeError as error:
+                raise HTTPException(413, str(error)) from None
+            except ImageDecodeError as error:
+                raise HTTPException(415, str(error)) from None
+        (height, width), (right_height, right_width) = sizes
+        if sizes[0] != sizes[1]:
+            raise HTTPException(
+                400, f"left and right images differ in size: {width} x {height} vs "
+                f"{right_width} x {right_height} (width x height); the pair must be rectified",
+            )
+        return height, width
 
     def _decode_pair(self, left_bytes: bytes, right_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
         images = []
@@ -166,7 +200,8 @@ def _timed_match(
 async def _read_pair(request: Request) -> tuple[bytes, bytes]:
     """The bytes of the ``left`` and ``right`` file parts of a multipart/form-data body."""
     content_type = request.headers.get("content-type", "")
-    if not content_type.startswith("multipart/form-data"):
+    # Media types are case-insensitive (RFC 9110 8.3.1); the multipart parser lower-cases them too.
+    if not content_type.strip().lower().startswith("multipart/form-data"):
         raise HTTPException(
             400, f"expected a multipart/form-data body with files 'left' and 'right', got "
             f"{content_type or 'no Content-Type'}",

@@ -34,12 +34,16 @@ def _query_names(dependant: Dependant) -> set[str]:
 
 
 def reject_unknown_query(request: Request) -> None:
-    """A misspelt parameter is refused rather than ignored (which would silently apply the default)."""
+    """A misspelt parameter is refused rather than ignored (which would silently apply the default), and
+    so is a repeated one (the last would silently win)."""
     known = _query_names(request.scope["route"].dependant)
     if unknown := sorted(set(request.query_params) - known):
         raise HTTPException(
             400, f"unknown query parameter '{unknown[0]}'; this route takes {', '.join(sorted(known))}"
         )
+    names = [name for name, _ in request.query_params.multi_items()]
+    if repeated := sorted({name for name in names if names.count(name) > 1}):
+        raise HTTPException(400, f"query parameter '{repeated[0]}' is given more than once; give it once")
 
 
 router = APIRouter(tags=["stereo"], dependencies=[Depends(reject_unknown_query)])
@@ -73,6 +77,10 @@ Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 # (service.optimization.MAX_PENALTY, 4096 cost units: 32 times the shipped cost scale).
 MAX_FOCAL_PX = 1e6
 MAX_BASELINE_M = 1e4
+# Lower bounds: f x B of 1e-60 underflows float32 and made every depth 0 m (a point cloud at the origin).
+# No camera has a focal length under a thousandth of a pixel or a baseline under a micrometre.
+MIN_FOCAL_PX = 1e-3
+MIN_BASELINE_M = 1e-6
 MAX_PRINCIPAL_PX = 1e6
 
 
@@ -81,16 +89,21 @@ def stereo_options(
         int | None, Query(ge=1, description="Disparities searched: 0..max_disparity-1 (default: model's).")
     ] = None,
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
-    fill: Annotated[bool, Query(description="Fill invalid pixels along rays (needs lr_check).")] = True,
+    fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
+                                       "default: lr_check).")] = None,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
     p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
                                       description="SGM small-jump penalty (default: model's).")] = None,
     p2: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
                                       description="SGM large-jump penalty (default: model's).")] = None,
 ) -> MatchOptions:
+    if fill and not lr_check:
+        # Filling fills what the check rejected: without the check it would silently do nothing.
+        raise HTTPException(400, "fill=true needs lr_check=true (filling fills the pixels the check rejects)")
     try:
         return MatchOptions(
-            max_disparity=max_disparity, lr_check=lr_check, fill=fill, subpixel=subpixel, p1=p1, p2=p2
+            max_disparity=max_disparity, lr_check=lr_check, fill=lr_check if fill is None else fill,
+            subpixel=subpixel, p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500
         raise HTTPException(400, str(error)) from None
@@ -171,9 +184,9 @@ async def disparity(
 async def depth(
     request: Request,
     options: Options,
-    focal_px: Annotated[float, Query(gt=0, le=MAX_FOCAL_PX, allow_inf_nan=False,
+    focal_px: Annotated[float, Query(ge=MIN_FOCAL_PX, le=MAX_FOCAL_PX, allow_inf_nan=False,
                                      description="Focal length in pixels.")],
-    baseline_m: Annotated[float, Query(gt=0, le=MAX_BASELINE_M, allow_inf_nan=False,
+    baseline_m: Annotated[float, Query(ge=MIN_BASELINE_M, le=MAX_BASELINE_M, allow_inf_nan=False,
                                        description="Stereo baseline in metres.")],
     format: Annotated[
         Literal["npy", "png16"] | None, Query(description="Output format; default from Accept, else npy.")
@@ -203,9 +216,9 @@ async def depth(
 async def pointcloud(
     request: Request,
     options: Options,
-    focal_px: Annotated[float, Query(gt=0, le=MAX_FOCAL_PX, allow_inf_nan=False,
+    focal_px: Annotated[float, Query(ge=MIN_FOCAL_PX, le=MAX_FOCAL_PX, allow_inf_nan=False,
                                      description="Focal length in pixels.")],
-    baseline_m: Annotated[float, Query(gt=0, le=MAX_BASELINE_M, allow_inf_nan=False,
+    baseline_m: Annotated[float, Query(ge=MIN_BASELINE_M, le=MAX_BASELINE_M, allow_inf_nan=False,
                                        description="Stereo baseline in metres.")],
     cx: Annotated[float | None, Query(ge=-MAX_PRINCIPAL_PX, le=MAX_PRINCIPAL_PX, allow_inf_nan=False,
                                       description="Principal point x in pixels (default: centre).")] = None,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,27 @@ from service.api.metrics import CONTENT_TYPE
 STATIC_DIR = Path(__file__).with_name("static")
 
 router = APIRouter()
+
+# An absolute POSIX, home-relative or Windows path inside a manifest string (a training command's
+# --out /home/alice/runs/x): the public copy keeps its last component only, the build machine's layout
+# is nobody's business. A "/" after a word character (1/4, w/o) is not a path.
+_ABSOLUTE_PATH = re.compile(r"""(?<![\w.])(?:~|[A-Za-z]:)?[/\\][^\s'"`,;()\[\]{}]*""")
+
+
+def _redact_path(match: re.Match[str]) -> str:
+    name = re.split(r"[/\\]", match.group(0).rstrip("/\\"))[-1]
+    return f"<path>/{name}" if name else "<path>"
+
+
+def public_manifest(value: Any) -> Any:
+    """The manifest as ``/v1/model`` shows it: every absolute path reduced to its last component."""
+    if isinstance(value, str):
+        return _ABSOLUTE_PATH.sub(_redact_path, value)
+    if isinstance(value, dict):
+        return {key: public_manifest(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [public_manifest(item) for item in value]
+    return value
 
 
 def _service(request: Request) -> InferenceService:
@@ -54,7 +76,7 @@ async def metrics(request: Request) -> Response:
     "/v1/model", tags=["model"], summary="The served model's manifest", responses=error_responses(503)
 )
 async def model(request: Request) -> dict[str, Any]:
-    return _service(request).manifest
+    return public_manifest(_service(request).manifest)
 
 
 @router.get("/", include_in_schema=False)

@@ -8,6 +8,9 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
+from service.features.towers import MAX_THREADS
+from service.memory import DEFAULT_MAX_REQUEST_BYTES
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class Settings:
@@ -22,6 +25,8 @@ class Settings:
     # Height x width x disparities of one request: bounds memory (4 bytes per cell, two int16 volumes that
     # the Matcher keeps between requests at the largest size served).
     max_cost_cells: int = 100_000_000
+    # Peak bytes of one request by the memory model (service/memory.py), checked on the image headers.
+    max_request_bytes: int = DEFAULT_MAX_REQUEST_BYTES
     # Seconds a request may take to deliver its whole body (408 after): an upload holds a queue place,
     # so without a deadline a few trickling clients could keep every place and everyone else at 503.
     body_timeout_s: float = 30.0
@@ -31,11 +36,11 @@ class Settings:
         for name in ("queue_size",):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("max_body_bytes", "max_pixels", "max_disparity", "max_cost_cells"):
+        for name in ("max_body_bytes", "max_pixels", "max_disparity", "max_cost_cells", "max_request_bytes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.threads is not None and self.threads < 1:
-            raise ValueError(f"threads must be >= 1, got {self.threads}")
+        if self.threads is not None and not 1 <= self.threads <= MAX_THREADS:
+            raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {self.threads}")
         timeout = self.body_timeout_s
         # bool is an int to Python, and nan/inf would silently mean "no deadline": refuse them all.
         if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not (
@@ -46,8 +51,8 @@ class Settings:
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
         """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
-        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``, ``ADSM_BODY_TIMEOUT_S`` and
-        ``ADSM_WARMUP``; unset or empty keeps the default."""
+        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``, ``ADSM_MAX_REQUEST_BYTES``,
+        ``ADSM_BODY_TIMEOUT_S`` and ``ADSM_WARMUP``; unset or empty keeps the default."""
         env = os.environ if environ is None else environ
         values: dict[str, object] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
@@ -59,6 +64,7 @@ class Settings:
             ("max_pixels", _parse_int),
             ("max_disparity", _parse_int),
             ("max_cost_cells", _parse_int),
+            ("max_request_bytes", _parse_int),
             ("body_timeout_s", _parse_float),
             ("warmup", _parse_bool),
         ):

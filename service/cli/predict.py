@@ -2,8 +2,10 @@
 
 The format follows OUT's extension (.png -> png16, .npy, .pfm) unless --format says otherwise;
 --timings prints the stage timings (seconds) as one JSON line on stderr, so stdout stays clean for
-scripts. Every expected failure (missing file, undecodable image, sizes differ, bad model folder) ends
-with one line ``adsm: error: ...`` and exit status 1, never a traceback.
+scripts. Every expected failure (missing file, undecodable image, sizes differ, bad model folder, a pair
+whose memory plan is over --max-memory-mib) ends with one line ``adsm: error: ...`` and exit status 1,
+never a traceback. The sizes and the memory plan (service/memory.py) come from the image headers, so an
+oversized pair is refused before it is decoded.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ import numpy as np
 from PIL import Image
 
 from service.features import ModelError
-from service.io import FORMATS, format_for_path, read_image, write_disparity
+from service.io import FORMATS, format_for_path, image_size, read_image, write_disparity
+from service.memory import DEFAULT_MAX_REQUEST_BYTES
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -42,6 +45,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--no-subpixel", action="store_true", help="integer disparities (no quadratic fit)")
     add("--validity", type=Path, metavar="PATH", help="also write the validity map (.png or .npy)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime threads (default: the available CPUs)")
+    add("--max-memory-mib", type=int, default=DEFAULT_MAX_REQUEST_BYTES // 2**20, metavar="MIB",
+        help="refuse a pair whose memory plan (images, features, tower tiles, cost volumes, results) "
+        "needs more (default %(default)s)")
     add("--timings", action="store_true", help="print stage timings (seconds) as one JSON line on stderr")
     parser.set_defaults(func=run)
 
@@ -51,24 +57,26 @@ def run(args: argparse.Namespace) -> int:
     output_format = args.format or format_for_path(args.output)
     if args.validity is not None and args.validity.suffix.lower() not in (".png", ".npy"):
         raise ValueError(f"--validity must name a .png or .npy file, got {str(args.validity)!r}")
-    left = _read(args.left, "left")
-    right = _read(args.right, "right")
-    if left.shape != right.shape:
+    if args.max_memory_mib < 1:
+        raise ValueError(f"--max-memory-mib must be >= 1, got {args.max_memory_mib}")
+    left_size = _size(args.left, "left")
+    right_size = _size(args.right, "right")
+    if left_size != right_size:
         raise ValueError(
-            f"left and right images differ in size: {left.shape[1]}x{left.shape[0]} vs "
-            f"{right.shape[1]}x{right.shape[0]} (a rectified pair has equal sizes)"
+            f"left and right images differ in size: {left_size[1]}x{left_size[0]} vs "
+            f"{right_size[1]}x{right_size[0]} (a rectified pair has equal sizes)"
         )
-    decoded = time.perf_counter()
 
     # Imported here so that `adsm --help` does not pay for Numba.
     from service.matcher import Matcher, MatchOptions
 
     try:
-        matcher = Matcher.from_folder(args.model, threads=args.threads)
+        matcher = Matcher.from_folder(
+            args.model, threads=args.threads, max_request_bytes=args.max_memory_mib * 2**20
+        )
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    loaded = time.perf_counter()
     options = MatchOptions(
         max_disparity=args.max_disparity,
         p1=args.p1,
@@ -77,6 +85,11 @@ def run(args: argparse.Namespace) -> int:
         lr_check=not args.no_lr_check,
         fill=not args.no_fill,
     )
+    matcher.check_memory(*left_size, options)  # MemoryLimitError (a ValueError): one line, exit 1
+    loaded = time.perf_counter()
+    left = _read(args.left, "left")
+    right = _read(args.right, "right")
+    decoded = time.perf_counter()
     result = matcher(left, right, options)
     matched = time.perf_counter()
 
@@ -85,12 +98,18 @@ def run(args: argparse.Namespace) -> int:
         _write_validity(args.validity, result.validity)
     if args.timings:
         stages = {name: seconds for name, seconds in result.timings.items() if name != "total"}
-        timings = {"decode": decoded - started, "load_model": loaded - decoded, **stages}
-        timings["match"] = matched - loaded
+        timings = {"load_model": loaded - started, "decode": decoded - loaded, **stages}
+        timings["match"] = matched - decoded
         timings["encode"] = time.perf_counter() - matched
         timings["total"] = time.perf_counter() - started
         print(json.dumps({name: round(seconds, 6) for name, seconds in timings.items()}), file=sys.stderr)
     return 0
+
+
+def _size(path: Path, side: str) -> tuple[int, int]:
+    if not path.is_file():
+        raise ValueError(f"{side} image {str(path)!r} does not exist or is not a file")
+    return image_size(path, name=f"{side} image {str(path)!r}")
 
 
 def _read(path: Path, side: str) -> np.ndarray:

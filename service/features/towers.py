@@ -17,6 +17,7 @@ import numpy as np
 import onnxruntime as ort
 
 from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
+from service.features.tiles import TOWER_WORK_BYTES
 
 logger = logging.getLogger("adsm")
 
@@ -43,7 +44,16 @@ def _pick_providers(requested: Sequence[str] | None) -> list[str]:
     return [*picked, "CPUExecutionProvider"]
 
 
+# ONNX Runtime starts every intra-op thread at session creation: 100000 asked for ~24,500 threads and hung
+# start-up. No CPU this runs on has more cores than this.
+MAX_THREADS = 256
+
 _shared_arena = False
+# Hard cap of the shared arena. Tiles keep one run under TOWER_WORK_BYTES (by a measured bound per model);
+# the factor 2 leaves room for the arena's fragmentation across tile shapes. Past the cap a run fails
+# with an error instead of growing the process until it is killed.
+ARENA_MAX_BYTES = 2 * TOWER_WORK_BYTES
+_SAME_AS_REQUESTED = 1  # arena_extend_strategy: grow by what a run asks for, not to the next power of two
 
 
 def _register_shared_arena() -> None:
@@ -52,8 +62,8 @@ def _register_shared_arena() -> None:
     if _shared_arena:
         return
     memory = ort.OrtMemoryInfo("Cpu", ort.OrtAllocatorType.ORT_ARENA_ALLOCATOR, 0, ort.OrtMemType.DEFAULT)
-    # max_mem 0 and -1: ORT's defaults (no limit, next-power-of-two extension, its chunk sizes).
-    ort.create_and_register_allocator(memory, ort.OrtArenaCfg(0, -1, -1, -1))
+    # -1: ORT's default initial chunk and dead-bytes-per-chunk sizes.
+    ort.create_and_register_allocator(memory, ort.OrtArenaCfg(ARENA_MAX_BYTES, -1, -1, -1))
     _shared_arena = True
 
 
@@ -68,8 +78,8 @@ class FeatureTowers:
     def __init__(
         self, folder: str | Path, *, threads: int | None = None, providers: Sequence[str] | None = None
     ) -> None:
-        if threads is not None and threads < 1:
-            raise ValueError(f"threads must be >= 1, got {threads}")
+        if threads is not None and not 1 <= threads <= MAX_THREADS:
+            raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {threads}")
         self.folder = Path(folder)
         self.manifest: dict[str, Any] = load_manifest(self.folder)
         verify_files(self.folder, self.manifest)

@@ -1,0 +1,124 @@
+"""Tower tiles: which rectangles of an image the ONNX towers run on, so that one run's memory is bounded.
+
+Why tiles: ONNX Runtime keeps every intermediate tensor of a run in its arena, and the graphs pad the
+image inside (``halo`` pixels on every side), so one run's work area is ``(h + 2 halo) x (w + 2 halo)``
+padded pixels, not ``h x w``. Row strips alone cannot bound it: an 8 x 262144 image is one strip of
+52 x 262188 padded pixels (6.5x its own size; 1.5 GB per 32 Ki columns with the default model). Tiles
+in both directions, each with ``halo`` real pixels of overlap on every side that is not an image edge,
+keep every run under :data:`TOWER_WORK_BYTES` for every aspect ratio, and give exactly the features of
+the whole image (the graph's edge padding applies only at the image's own edges).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+# Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
+# every shipped model (tests/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
+# derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
+# they need far more than fp32 ones: adsm-fast-int8 977, adsm-paper-int8 1239, adsm-fast 166,
+# adsm-paper 574, ncc-baseline 448 bytes measured per padded pixel.
+_WORK_BASE = {"int8": 1024, "fp32": 128}
+_WORK_PER_CHANNEL = 8
+
+# Largest work area of one tower run. 640 MiB lets the default model (adsm-fast-int8) run a KITTI-size
+# image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the former row-strip budget did, while a
+# 1080p image goes in tiles instead of two 1 Mpx strips (~1 GB of arena).
+TOWER_WORK_BYTES = 640 * 1024 * 1024
+
+
+@dataclasses.dataclass(frozen=True)
+class Tile:
+    """One tower run: rows/columns ``run_*`` go in, rows/columns ``keep_*`` of its output are kept."""
+
+    run_top: int
+    run_bottom: int
+    run_left: int
+    run_right: int
+    keep_top: int
+    keep_bottom: int
+    keep_left: int
+    keep_right: int
+
+    def padded_pixels(self, halo: int) -> int:
+        """The run's work area inside the graph, which pads ``halo`` pixels on every side."""
+        return (self.run_bottom - self.run_top + 2 * halo) * (self.run_right - self.run_left + 2 * halo)
+
+
+def work_bytes_per_pixel(manifest: dict[str, Any]) -> int:
+    """Bound on ONNX Runtime's work area per padded pixel of one tower run of this model."""
+    precision = str(manifest.get("onnx", {}).get("precision", "fp32"))
+    base = _WORK_BASE.get(precision, max(_WORK_BASE.values()))
+    return base + _WORK_PER_CHANNEL * int(manifest["channels"])
+
+
+def halo_of(manifest: dict[str, Any]) -> int:
+    """Pixels of context each side of a feature vector: half the receptive field."""
+    return int(manifest["receptive_field"]) // 2
+
+
+def _spans(length: int, count: int, halo: int) -> list[tuple[int, int, int, int]]:
+    """``count`` equal cores covering ``length``; every run has the same length (core + 2 halo).
+
+    Equal runs matter for memory: ONNX Runtime's arena reuses the chunks of a run of the same shape,
+    while runs of a few different shapes (an edge tile is ``halo`` shorter) fragment it to about twice
+    one run's size (1080p in 5 tiles: 1067 MiB of arena instead of ~550). An edge run therefore takes
+    ``halo`` more pixels from the interior: extra context, the same features.
+    """
+    core = -(-length // count)
+    run = min(core + 2 * halo, length) if count > 1 else length
+    spans = []
+    for keep_start in range(0, length, core):
+        keep_end = min(keep_start + core, length)
+        run_start = min(max(keep_start - halo, 0), length - run)
+        spans.append((run_start, run_start + run, keep_start, keep_end))
+    return spans
+
+
+def _run_length(core: int, length: int, halo: int) -> int:
+    # An interior core carries halo context on both sides; never more than the image itself.
+    return min(core + 2 * halo, length)
+
+
+def tower_tiles(height: int, width: int, halo: int, *, budget_pixels: int) -> list[Tile]:
+    """Tiles covering ``height x width`` whose padded work area is at most ``budget_pixels`` each.
+
+    Whole rows are preferred (no column overlap), then the column count with the least total work.
+    The budget is raised to the smallest feasible tile (1 x 1 core) when it is below that.
+    """
+    if height < 1 or width < 1:
+        raise ValueError(f"image must be at least 1 x 1, got {height} x {width}")
+    budget = max(budget_pixels, (1 + 4 * halo) ** 2)
+    if (height + 2 * halo) * (width + 2 * halo) <= budget:
+        return [Tile(0, height, 0, width, 0, height, 0, width)]
+    best: tuple[int, int, int] | None = None  # (work, rows, columns)
+    columns = 1
+    while columns <= width:
+        run_width = _run_length(-(-width // columns), width, halo) + 2 * halo
+        max_run_rows = budget // run_width - 2 * halo  # the tallest run of this width that fits
+        if max_run_rows >= height:
+            rows = 1
+        elif max_run_rows - 2 * halo >= 1:
+            rows = -(-height // (max_run_rows - 2 * halo))
+        else:
+            rows = 0  # too wide for even one row of core: more columns
+        if rows:
+            run_height = _run_length(-(-height // rows), height, halo) + 2 * halo
+            work = rows * columns * run_height * run_width
+            if best is None or work < best[0]:
+                best = (work, rows, columns)
+            elif work > 2 * best[0]:
+                break  # more columns only add overlap from here
+        if columns == width:
+            break
+        # Every count up to 64, then 5 % steps (a 2 Mpx row needs ~100-400), ending at 1-pixel cores.
+        columns = min(columns + 1 if columns < 64 else math.ceil(columns * 1.05), width)
+    assert best is not None  # columns == width gives 1-pixel cores, which the raised budget always fits
+    _, rows, columns = best
+    return [
+        Tile(rt, rb, cl, cr, kt, kb, kl, kr)
+        for rt, rb, kt, kb in _spans(height, rows, halo)
+        for cl, cr, kl, kr in _spans(width, columns, halo)
+    ]
