@@ -102,7 +102,43 @@ def test_resume_reproduces_the_loss_curve(tmp_path):
     assert [r["lr"] for r in resumed] == [r["lr"] for r in straight]
     a = load_checkpoint(tmp_path / "straight" / "last.pt").state_dict
     b = load_checkpoint(tmp_path / "resumed" / "last.pt").state_dict
-    assert all(torch.equal(a[name], b[name]) for name in a)
+    # Not bit-equal: two straight runs in one process already differ in the last bits (oneDNN picks
+    # kernels by alignment), and Adam turns a rounding-level gradient on a near-flat weight into a step
+    # of up to lr. The bound is one such step per iteration; the loss curve, compared exactly above, is
+    # what catches a lost or repeated step.
+    for name in a:
+        step_bound = config.lr * config.iterations
+        torch.testing.assert_close(a[name].float(), b[name].float(), rtol=0, atol=step_bound)
+
+
+def test_worker_processes_give_the_loss_curve_of_inline_batches(tmp_path):
+    # Batches are a pure function of the step, so building them in other processes changes nothing.
+    config = TrainConfig(**TINY, iterations=3, val_every=3)
+    train(dataclasses.replace(config, out=str(tmp_path / "inline")))
+    train(dataclasses.replace(config, out=str(tmp_path / "workers"), workers=2))
+    inline, workers = history(tmp_path / "inline"), history(tmp_path / "workers")
+    assert [r["loss"] for r in workers] == [r["loss"] for r in inline]
+
+
+def test_time_budget_checkpoints_and_resume_auto_continues(tmp_path):
+    out = tmp_path / "chunks"
+    argv = ["--channels", "4", "--crop", "48", "96", "--max-disparity", "24", "--batch-size", "2",
+            "--val-pairs", "1", "--cones", "", "--threads", "1", "--iterations", "3", "--val-every", "3",
+            "--out", str(out), "--resume", "auto"]
+    assert main([*argv, "--time-budget", "0"]) == 0      # spent at once: one step, validated, saved
+    first = load_checkpoint(out / "last.pt")
+    assert first.step == 1 and "finished" not in first.training and first.optimizer is not None
+    assert main(argv) == 0                                 # the same command picks up where it stopped
+    last = load_checkpoint(out / "last.pt")
+    assert last.step == 3 and "finished" in last.training
+    assert [r["step"] for r in history(out)] == [1, 2, 3]
+
+
+def test_cuda_device_is_refused_clearly_without_a_gpu(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present: nothing to refuse")
+    with pytest.raises(ValueError, match="no CUDA device"):
+        train(TrainConfig(**TINY, iterations=1, out=str(tmp_path / "gpu"), device="cuda"))
 
 
 def test_patch_mode_iterations(tmp_path):
@@ -163,6 +199,8 @@ def test_recorded_command_names_the_measured_defaults():
 def test_cli_rejects_bad_arguments(capsys):
     assert main(["--iterations", "0"]) == 2
     assert "--iterations" in capsys.readouterr().err
+    assert main(["--workers", "-1"]) == 2
+    assert "--workers" in capsys.readouterr().err
     assert main(["--data", f"cones:{CONES}", "--iterations", "1"]) == 1
     assert "evaluation" in capsys.readouterr().err
 

@@ -1,6 +1,7 @@
 """Train ADSM feature towers.
 
     python -m training.train --config 37-1deconv5-4conv --data synthetic --channels 16 --out runs/fast
+    python -m training.train ... --device cuda --workers 14 --time-budget 540 --resume auto   (GPU chunks)
     torchrun --nproc_per_node 2 -m training.train ...        (DDP over gloo; --batch-size is per process)
 
 Writes OUT/last.pt (every validation), OUT/best.pt (lowest synthetic validation bad-2), OUT/history.jsonl
@@ -16,6 +17,7 @@ import json
 import os
 import shlex
 import sys
+from pathlib import Path
 
 from training.networks import DEFAULT_CONFIG, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
@@ -46,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--temperature", type=float, default=10.0,
                         help="initial softmax temperature of the cosine logits (learned afterwards)")
     parser.add_argument("--out", default="runs/train")
-    parser.add_argument("--resume", help="checkpoint (OUT/last.pt) to continue exactly")
+    parser.add_argument("--resume", help="checkpoint (OUT/last.pt) to continue exactly; 'auto': "
+                                         "OUT/last.pt if it exists, else a fresh start (one command "
+                                         "for every chunk)")
     parser.add_argument("--seed", type=int, default=0, help="0..99: picks the training examples and init")
     parser.add_argument("--lr", type=float, default=1e-3, help="peak Adam learning rate")
     parser.add_argument("--schedule", choices=SCHEDULES, default=DEFAULT_SCHEDULE,
@@ -92,6 +96,14 @@ def recorded_command(argv: list[str], args: argparse.Namespace) -> str:
     return shlex.join(["python", "-m", "training.train", *given])
 
 
+def resolve_resume(resume: str | None, out: str) -> str | None:
+    """``--resume auto`` -> OUT/last.pt when an earlier chunk wrote it, else None (start afresh)."""
+    if resume != "auto":
+        return resume
+    last = Path(out) / "last.pt"
+    return str(last) if last.exists() else None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     defaults = MODE_DEFAULTS[args.mode]
@@ -116,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
                          workers=args.workers,
                          init_from=args.init_from, command=command)
     try:
-        summary = train(config, resume=args.resume)
+        summary = train(config, resume=resolve_resume(args.resume, args.out))
     except (OSError, ValueError) as error:
         print(f"training.train: error: {error}", file=sys.stderr)
         return 1
