@@ -1,4 +1,5 @@
-"""End to end through the shipped NCC baseline: a rendered slanted plane, a tampered model, the Cones pair."""
+"""End to end through the shipped NCC baseline (a rendered slanted plane, a tampered model) and every shipped
+model on the Cones pair through `adsm predict --model`, each guarded at its own measured figures."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 from PIL import Image
 
 from service.cli import main
-from service.features import ModelError
+from service.features import ModelError, load_manifest
 from service.io import read_disparity
 from service.matcher import Matcher, MatchOptions
 
@@ -88,13 +89,26 @@ def test_tampered_left_tower_refused(tmp_path):
         Matcher.from_folder(folder)
 
 
+# Each shipped model's guard: its Cones figures from its own manifest (measured by export.measure, so the
+# guard follows the model when the folder is replaced and re-measured) plus this margin. The margin covers
+# int8 kernels that differ between CPUs (0.11 point seen); the two-sided check against a fresh run is
+# tests/test_measured_metrics.py.
+GUARD_MARGIN = {"bad-N": 0.25, "epe": 0.05}   # percentage points; pixels
+SHIPPED_MODELS = sorted(p.name for p in SHIPPED.parent.iterdir() if (p / "manifest.json").is_file())
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not CONES.is_dir(), reason=f"evaluation pair not present at {CONES}")
-def test_cones_with_adsm_predict(tmp_path, capsys):
-    """A regression guard on the one real pair (evaluation only; the baseline was not tuned on it)."""
+@pytest.mark.parametrize("name", SHIPPED_MODELS)
+def test_cones_with_adsm_predict(name, tmp_path, capsys):
+    """A regression guard on the one real pair (evaluation only; no model was tuned on it)."""
+    entry = load_manifest(SHIPPED.parent / name)["metrics"].get("middlebury2003-cones", {})
+    if not str(entry.get("command", "")).startswith("python -m export.measure"):
+        pytest.fail(f"{name}: no Cones figures measured by export.measure in its manifest; run "
+                    f"`python -m export.measure --model service/models/{name} --write`")
     out = tmp_path / "cones.pfm"
     code = main(["predict", str(CONES / "left.png"), str(CONES / "right.png"), "-o", str(out),
-                 "--max-disparity", "64"])
+                 "--model", str(SHIPPED.parent / name), "--max-disparity", "64"])
     assert code == 0, capsys.readouterr().err
     disparity = read_disparity(out)
     truth = read_disparity(CONES / "disp_left.png")
@@ -103,7 +117,10 @@ def test_cones_with_adsm_predict(tmp_path, capsys):
     known = np.isfinite(truth)
     error = np.abs(disparity - truth)
     assert np.isfinite(disparity).all()  # filled everywhere
-    bad3_all = 100 * float((error[known] > 3).mean())
-    bad3_nonocc = 100 * float((error[known & nonocc] > 3).mean())
-    # Measured 15.3 % and 6.0 % when the baseline shipped; the bounds leave room for runtime changes.
-    assert bad3_all < 20.0 and bad3_nonocc < 9.0, (bad3_all, bad3_nonocc)
+    figures = {"bad2": 100 * float((error[known] > 2).mean()),
+               "bad3": 100 * float((error[known] > 3).mean()),
+               "bad2_nonocc": 100 * float((error[known & nonocc] > 2).mean()),
+               "epe": float(error[known].mean())}
+    for key, value in figures.items():
+        bound = entry[key] + GUARD_MARGIN["epe" if key == "epe" else "bad-N"]
+        assert value <= bound, f"{name}: {key} {value:.3f} over its measured {entry[key]} + margin"
