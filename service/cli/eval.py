@@ -1,7 +1,9 @@
 """`adsm eval --model DIR --data SPEC`: a model's accuracy and speed on a dataset, as the paper tabulates.
 
 Prints bad-1..5 (the paper's N-pixel errors, %), EPE, D1 and density over every ground-truth pixel and
-over the non-occluded ones where the dataset has a mask, plus seconds per pair; one progress line per
+over the non-occluded ones where the dataset has a mask, the error breakdown (border strip, rejected by
+the check, accepted pixels by distance to a disparity jump: service/evaluation/breakdown.py), plus
+seconds per pair; one progress line per
 pair goes to stderr. ``--json OUT`` writes the full report (``-``: to stdout instead of the table).
 SPEC: synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH.
 """
@@ -16,6 +18,7 @@ from typing import Any
 
 from service.datasets import open_dataset
 from service.evaluation import BAD_THRESHOLDS
+from service.evaluation.breakdown import format_breakdown
 from service.features import ModelError
 
 
@@ -80,6 +83,8 @@ def format_table(report: dict[str, Any]) -> str:
             continue
         cells = "".join(f"{'-' if figures[c] is None else format(figures[c], '.2f'):>11}" for c in columns)
         lines.append(f"{subset:<12}{cells}")
+    if "breakdown" in report:
+        lines.append(format_breakdown(report["breakdown"]))
     lines.append(f"seconds per pair: {report['seconds_per_pair']:.3f}  (stages: "
                  + ", ".join(f"{k} {v:.3f}" for k, v in report["stage_seconds"].items()) + ")")
     return "\n".join(lines)

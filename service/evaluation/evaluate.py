@@ -16,6 +16,7 @@ from typing import Any
 from service.datasets import StereoSample
 from service.matcher import MatchOptions, StereoResult
 
+from .breakdown import Breakdown
 from .metrics import ErrorCounts, count_errors
 
 REPORT_SCHEMA = "adsm-eval/1"
@@ -29,11 +30,13 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
     """Figures over every ground-truth pixel of ``dataset`` (and its non-occluded subset where known).
 
     ``on_pair(index, pair_report)`` is called after each pair (progress output). Returns a JSON-ready
-    report: ``all`` and ``nonoccluded`` summaries, seconds per pair, mean stage seconds, per-pair figures.
+    report: ``all`` and ``nonoccluded`` summaries, the error ``breakdown`` (border strip, rejected,
+    accepted by distance to a disparity jump: ``breakdown.py``), seconds per pair, stage seconds, per pair.
     """
     options = MatchOptions() if options is None else options
     everything, visible = ErrorCounts(), ErrorCounts()
     masked_pairs, seconds = 0, []
+    breakdown = Breakdown()
     stage_seconds: dict[str, float] = {}
     pairs = []
     for index in range(len(dataset)):
@@ -46,9 +49,11 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
             stage_seconds[stage] = stage_seconds.get(stage, 0.0) + value
         pair_all = count_errors(result.disparity, sample.disparity)
         everything += pair_all
+        pair_breakdown = Breakdown().add(result.disparity, sample.disparity, result.validity)
+        breakdown += pair_breakdown
         report = {"name": sample.name, "height": sample.left.shape[0], "width": sample.left.shape[1],
                   "max_disparity": search, "seconds": round(seconds[-1], 4), "all": pair_all.summary(),
-                  "nonoccluded": None}
+                  "nonoccluded": None, "breakdown": pair_breakdown.summary()}
         if sample.nonoccluded is not None:
             pair_visible = count_errors(result.disparity, sample.disparity, sample.nonoccluded)
             visible += pair_visible
@@ -70,6 +75,7 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
         "all": everything.summary(),
         "nonoccluded": visible.summary() if masked_pairs else None,
         "nonoccluded_pairs": masked_pairs,
+        "breakdown": breakdown.summary(),
         "seconds_per_pair": round(sum(seconds) / len(seconds), 4),
         "stage_seconds": {stage: round(total / len(pairs), 4) for stage, total in stage_seconds.items()},
         "per_pair": pairs,
