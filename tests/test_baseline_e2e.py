@@ -3,6 +3,7 @@ model on the Cones pair through `adsm predict --model`, each guarded at its own 
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -98,7 +99,8 @@ SHIPPED_MODELS = sorted(p.name for p in SHIPPED.parent.iterdir() if (p / "manife
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not CONES.is_dir(), reason=f"evaluation pair not present at {CONES}")
+@pytest.mark.skipif(not CONES.is_dir() and os.environ.get("CI") != "true",  # in CI a missing pair fails
+                    reason=f"evaluation pair not present at {CONES}")
 @pytest.mark.parametrize("name", SHIPPED_MODELS)
 def test_cones_with_adsm_predict(name, tmp_path, capsys):
     """A regression guard on the one real pair (evaluation only; no model was tuned on it)."""

@@ -175,11 +175,12 @@ def test_shipped_folder_is_reproducible_from_the_script(tmp_path):
         p1=manifest["sgm"]["p1"],
         p2=manifest["sgm"]["p2"],
         selection=manifest["build"].get("selection"),
-        metrics=manifest["metrics"],
     ).parent
     for name in ("left.onnx", "right.onnx"):
         assert (rebuilt / name).read_bytes() == (SHIPPED / name).read_bytes(), name
-    assert load_manifest(rebuilt) == manifest
+    # Everything but the metrics, which the script does not measure (export.measure does, and a fresh run
+    # is compared with them in tests/test_measured_metrics.py): fed back, they would only match themselves.
+    assert {**load_manifest(rebuilt), "metrics": None} == {**manifest, "metrics": None}
 
 
 def test_shipped_default_loads(monkeypatch):
