@@ -81,7 +81,7 @@ def test_patch_and_dense_modes_give_the_same_loss_and_gradient(pair, half_range)
     features_left = tower(F.pad(left, pad, mode="replicate"))
     features_right = tower(F.pad(right, pad, mode="replicate"))
     truth = torch.from_numpy(pair.disparity)[None]
-    logits, inside, where = dense_candidates(features_left, features_right, truth, temperature=temperature,
+    logits, inside, where, _ = dense_candidates(features_left, features_right, truth, temperature=temperature,
                                              half_range=half_range)
     assert where.shape[0] == int(usable_pixels(pair).sum())
     chosen = torch.from_numpy(np.random.default_rng(0).choice(where.shape[0], 40, replace=False))
@@ -108,7 +108,8 @@ def test_patch_and_dense_modes_agree_for_a_conv_tower_of_the_zoo(pair):
     with torch.no_grad():
         features = [networks.dense_features(t, i) for t, i in zip((towers.left, towers.right), images,
                                                                    strict=True)]
-        logits, inside, where = dense_candidates(*features, truth, temperature=towers.log_temperature.exp())
+        temperature = towers.log_temperature.exp()
+        logits, inside, where, _ = dense_candidates(*features, truth, temperature=temperature)
         chosen = where[:: max(1, where.shape[0] // 12)]
         patches = patch_pairs(pair, chosen[:, 1:].numpy(), patch=towers.patch)
         patch = matching_loss(towers(patches.left, patches.right), patches.inside, reduction="none")
@@ -120,7 +121,7 @@ def test_patch_and_dense_modes_agree_for_a_conv_tower_of_the_zoo(pair):
 def test_dense_loss_uses_only_pixels_with_truth_and_a_match_in_the_crop():
     features = F.normalize(torch.randn(1, 4, 3, 8, generator=torch.Generator().manual_seed(3)), dim=1)
     truth = torch.tensor([[[0.4, 1.6, 2.5, float("nan"), 7.0, 9.0, 2.0, 3.0]] * 3])
-    _, inside, where = dense_candidates(features, features, truth, temperature=1.0, half_range=2)
+    _, inside, where, _ = dense_candidates(features, features, truth, temperature=1.0, half_range=2)
     # x=0: d 0.4 -> 0 (match 0) ok; x=1: 1.6 -> 2 (match -1) out; x=2: 2.5 -> 3 (half up, match -1) out;
     # x=3 unknown; x=4: d 7 -> match -3 out; x=5: 9 -> out; x=6: 2 -> 4 ok; x=7: 3 -> 4 ok.
     assert sorted(set(where[:, 2].tolist())) == [0, 6, 7] and where.shape[0] == 9
@@ -146,3 +147,22 @@ def test_random_samples_are_in_range_and_respect_occlusion(pair):
         random_crop(pair, rng, height=64, width=48)
     with pytest.raises(ValueError, match="ground truth"):
         patch_pairs(pair, np.array([[0, 0]]), patch=5)  # x = 0: its match is outside the right image
+
+
+def test_subpixel_label_keeps_its_mass_and_moves_its_centroid_by_the_shift():
+    from training.losses import shifted_label
+    label = soft_label(candidates=11).expand(4, 11)
+    shift = torch.tensor([0.0, 0.3, -0.45, 1.0])
+    moved = shifted_label(label, shift)
+    positions = torch.arange(11, dtype=torch.float32)
+    torch.testing.assert_close(moved.sum(dim=1), torch.ones(4))
+    torch.testing.assert_close((moved * positions).sum(dim=1), 5.0 + shift)
+    torch.testing.assert_close(moved[0], label[0])
+
+
+def test_dense_shift_points_at_the_fractional_truth():
+    features = F.normalize(torch.randn(1, 4, 3, 16), dim=1)
+    truth = torch.full((1, 3, 16), 3.25)
+    *_, shift = dense_candidates(features, features, truth, temperature=1.0, half_range=4)
+    # Candidate index grows as disparity falls: a truth 0.25 px above its rounded value sits 0.25 before it.
+    torch.testing.assert_close(shift, torch.full_like(shift, -0.25))

@@ -166,7 +166,7 @@ def test_dense_and_patch_objectives_agree_on_the_same_pixel():
         patch_loss, _ = Objective(model, mode="patch")(pairs.left, pairs.right, pairs.inside)
         left, right = (torch.from_numpy(v.transpose(2, 0, 1)).float()[None] / 255 for v in (sample.left,
                                                                                           sample.right))
-        logits, inside, where = dense_candidates(dense_features(model.left, left),
+        logits, inside, where, _ = dense_candidates(dense_features(model.left, left),
                                                  dense_features(model.right, right),
                                                  torch.from_numpy(sample.disparity)[None],
                                                  temperature=model.log_temperature.exp())

@@ -33,16 +33,32 @@ def soft_label(*, candidates: int = CANDIDATES, device: torch.device | None = No
     return label
 
 
+LABELS = ("paper", "subpixel")
+
+
+def shifted_label(label: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """Each row of ``label`` [N, K] moved by ``shift`` [N] candidates (|shift| <= 1), by linear
+    interpolation between whole-candidate shifts: the label's mass is kept and its centroid moves by
+    exactly ``shift``."""
+    weight = shift.abs()[:, None].to(label.dtype)
+    towards = torch.where(shift[:, None] > 0, label.roll(1, dims=1), label.roll(-1, dims=1))
+    return (1.0 - weight) * label + weight * towards
+
+
 def matching_loss(logits: torch.Tensor, inside: torch.Tensor | None = None, *,
-                  reduction: str = "mean") -> torch.Tensor:
+                  reduction: str = "mean", shift: torch.Tensor | None = None) -> torch.Tensor:
     """Cross-entropy (eq. 18) of candidate ``logits`` [N, K] against the soft label centred at K // 2.
 
     ``inside`` [N, K] (bool) marks candidates inside the right image; the others are excluded.
+    ``shift`` [N] moves each example's label by a fraction of a candidate (:func:`shifted_label`): the
+    sub-pixel variant, centred on the fractional truth instead of the rounded one.
     ``reduction``: "mean" over the N examples, "sum", or "none" (a loss per example).
     """
     if logits.ndim != 2:
         raise ValueError(f"logits must be [N, candidates], got {tuple(logits.shape)}")
     label = soft_label(candidates=logits.shape[1], device=logits.device).expand_as(logits)
+    if shift is not None:
+        label = shifted_label(label, shift)
     if inside is not None:
         if inside.shape != logits.shape:
             raise ValueError(f"inside {tuple(inside.shape)} does not match logits {tuple(logits.shape)}")
@@ -70,13 +86,14 @@ def rounded_disparity(disparity: torch.Tensor) -> torch.Tensor:
 
 def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, disparity: torch.Tensor,
                      *, temperature: torch.Tensor | float, half_range: int = HALF_RANGE
-                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Candidate logits of every pixel with usable ground truth in a crop.
 
     ``features_*``: [B, C, H, W] (L2-normalised, from the towers run once per crop); ``disparity``:
     [B, H, W] float, NaN where unknown. A pixel is used when its truth is known and its match
     ``x - round(d)`` is inside the crop. Returns logits [M, 2 * half_range + 1] (strip order), the
-    ``inside`` mask of the same shape, and the used pixels' (b, y, x) indices [M, 3].
+    ``inside`` mask of the same shape, the used pixels' (b, y, x) indices [M, 3], and each pixel's
+    sub-pixel label shift [M] in candidates (``round(d) - d``: a larger disparity is a smaller column).
     """
     if features_left.shape != features_right.shape or features_left.ndim != 4:
         raise ValueError(f"left {tuple(features_left.shape)} and right {tuple(features_right.shape)} "
@@ -97,13 +114,15 @@ def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
     candidate_columns = match[b, y, x][:, None] + offsets[None, :]           # [M, K]
     inside = (candidate_columns >= 0) & (candidate_columns < width)
     scores = rows.gather(1, candidate_columns.clamp(0, width - 1))
-    return temperature * scores, inside, torch.stack([b, y, x], dim=1)
+    shift = (truth[b, y, x] - disparity[b, y, x]).float()
+    return temperature * scores, inside, torch.stack([b, y, x], dim=1), shift
 
 
 def dense_matching_loss(features_left: torch.Tensor, features_right: torch.Tensor, disparity: torch.Tensor,
                         *, temperature: torch.Tensor | float, reduction: str = "mean") -> torch.Tensor:
     """:func:`matching_loss` over every usable pixel of a crop (see :func:`dense_candidates`)."""
-    logits, inside, _ = dense_candidates(features_left, features_right, disparity, temperature=temperature)
+    logits, inside, _, _ = dense_candidates(features_left, features_right, disparity,
+                                            temperature=temperature)
     if logits.shape[0] == 0:
         raise ValueError("no pixel of the crop has usable ground truth")
     return matching_loss(logits, inside, reduction=reduction)

@@ -19,6 +19,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from training.losses import LABELS
 from training.networks import DEFAULT_CONFIG, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
 from training.trainer import TrainConfig, train
@@ -61,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--augmentation", choices=AUGMENTATIONS, default=DEFAULT_AUGMENTATION,
                         help="on top of the generator's camera effects (default chosen by measurement: "
                              "docs/training.md)")
+    parser.add_argument("--label", choices=LABELS, default="paper",
+                        help="paper: eq. (19) around the rounded truth; subpixel: the same label moved "
+                             "to the fractional truth (dense mode; docs/training.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
@@ -121,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                          mode=args.mode, iterations=args.iterations or defaults["iterations"],
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
-                         max_disparity=args.max_disparity, augmentation=args.augmentation,
+                         max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

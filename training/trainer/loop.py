@@ -51,6 +51,7 @@ class TrainConfig:
     crop: tuple[int, int] = (128, 256)
     max_disparity: int = 96
     augmentation: str = DEFAULT_AUGMENTATION
+    label: str = "paper"                # eq. (19) on the rounded truth; "subpixel": centred on the exact one
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES                  # evaluation only; "" skips it
@@ -111,7 +112,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         step = checkpoint.step
         wall_before = float(checkpoint.training["wall_time_s"]) if checkpoint.training else 0.0
         best = checkpoint.config.get("best")
-    objective = Objective(model, mode=config.mode)
+    objective = Objective(model, mode=config.mode, label=config.label)
     wrapped = DistributedDataParallel(objective) if world > 1 else objective
     history = out / "history.jsonl"
     if rank == 0:

@@ -9,16 +9,20 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from training.losses import dense_candidates, matching_loss
+from training.losses import LABELS, dense_candidates, matching_loss
 from training.networks import TowerPair, dense_features
 
 
 class Objective(nn.Module):
-    def __init__(self, model: TowerPair, *, mode: str) -> None:
+    def __init__(self, model: TowerPair, *, mode: str, label: str = "paper") -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
-        self.model, self.mode = model, mode
+        if label not in LABELS:
+            raise ValueError(f"label must be one of {LABELS}, got {label!r}")
+        if label == "subpixel" and mode == "patch":
+            raise ValueError("the sub-pixel label needs the fractional truth of dense crops (--mode dense)")
+        self.model, self.mode, self.label = model, mode, label
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
                 ) -> tuple[torch.Tensor, int]:
@@ -32,10 +36,11 @@ class Objective(nn.Module):
             features_right = dense_features(self.model.right, right)
         features_left, features_right = features_left.float(), features_right.float()
         temperature = self.model.log_temperature.exp()
-        logits, inside, pixels = dense_candidates(features_left, features_right, target,
+        logits, inside, pixels, shift = dense_candidates(features_left, features_right, target,
                                                   temperature=temperature)
         if logits.shape[0] == 0:
             # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
             # so DDP's gradient all-reduce sees the same parameters on every process.
             return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
-        return matching_loss(logits, inside), int(pixels.shape[0])
+        shift = shift if self.label == "subpixel" else None
+        return matching_loss(logits, inside, shift=shift), int(pixels.shape[0])
