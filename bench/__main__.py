@@ -39,6 +39,9 @@ def main(argv: list[str]) -> int:
         known = ", ".join(sorted(benchmarks))
         print(f"bench: error: unknown benchmark {name!r}; have {known}", file=sys.stderr)
         return 2
+    from service import jit
+
+    jit.configure_cache()  # as `adsm` does when it starts
     return int(importlib.import_module(f"bench.{name}").main(argv[1:]) or 0)
 
 

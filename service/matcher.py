@@ -15,6 +15,7 @@ call instead; see that module for the measurement).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from collections.abc import Sequence
@@ -36,6 +37,8 @@ from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
 
 __all__ = ["MatchOptions", "Matcher", "MemoryLimitError", "StereoResult", "Validity"]
+
+logger = logging.getLogger("adsm")
 
 
 class MemoryLimitError(ValueError):
@@ -128,10 +131,30 @@ class Matcher:
         return cls(towers, threads=threads, reuse_volumes=reuse_volumes, max_request_bytes=max_request_bytes)
 
     def warmup(self) -> None:
-        """Compile or load every Numba kernel and run the towers once, so the first request is fast."""
-        jit.set_threads(self.threads)
-        jit.warmup()
+        """Check the towers against the manifest, then run the real pipeline on a tiny pair once per set
+        of options that reaches a different kernel, so every kernel is compiled (or loaded from the cache)
+        before the first request. A cache that cannot be read (a corrupt index) is cleared and the kernels
+        compiled afresh, once; any other failure is raised."""
         self.towers.warmup()
+        rng = np.random.default_rng(0)
+        left = rng.integers(0, 256, (12, 24, 3), dtype=np.uint8)
+        right = np.roll(left, -2, axis=1)
+        try:
+            self._warm_kernels(left, right)
+        except Exception as error:
+            if not jit.raised_by_cache(error):
+                raise
+            logger.warning("numba cache %s unreadable (%s: %s): cleared, compiling the kernels afresh",
+                           jit.cache_dir(), type(error).__name__, error)
+            jit.clear_cache()
+            self._warm_kernels(left, right)
+
+    def _warm_kernels(self, left: np.ndarray, right: np.ndarray) -> None:
+        # All on: cost volume, SGM, left-right winners, sub-pixel, inner check, filling; lr_check off:
+        # plain winner-takes-all.
+        every_kernel = MatchOptions(max_disparity=4)
+        for options in (every_kernel, MatchOptions(max_disparity=4, lr_check=False, fill=False)):
+            self(left, right, options)
 
     def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tower features of both views, in tiles when one run would exceed the tower work budget."""

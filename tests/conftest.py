@@ -13,8 +13,12 @@ from collections.abc import AsyncIterator
 import numpy as np
 import pytest
 
-# Before any kernel module is imported (service.jit reads it once): keep test runs off the user's cache.
+# Keep test runs off the user's cache: kernels cache here, as `adsm` would with this variable set (child
+# processes inherit it).
 os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "adsm-test-numba-cache"))
+from service import jit
+
+jit.configure_cache()
 
 
 def unit_features(rng: np.random.Generator, channels: int, height: int, width: int) -> np.ndarray:

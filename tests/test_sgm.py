@@ -3,13 +3,6 @@ because integer costs and penalties make every path cost an exact integer."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import stat
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 from reference_sgm import reference_sgm
@@ -17,7 +10,6 @@ from reference_sgm import reference_sgm
 from service.optimization import aggregate
 
 SCALE = 128
-SERVICE_DIR = Path(__file__).resolve().parent.parent / "service"
 
 
 def _random_cost(shape: tuple[int, int, int], seed: int) -> np.ndarray:
@@ -105,51 +97,3 @@ def test_rejects_bad_shapes() -> None:
         aggregate(np.zeros((3, 4, 2), np.float32), p1=1, p2=2)
     with pytest.raises(ValueError, match="out"):
         aggregate(np.zeros((3, 4, 2), np.int16), p1=1, p2=2, out=np.zeros((3, 4, 3), np.int16))
-
-
-def _python(code: str, **env: str) -> str:
-    ours = ("ADSM_NUMBA_CACHE_DIR", "NUMBA_CACHE_DIR")
-    environment = {key: value for key, value in os.environ.items() if key not in ours}
-    completed = subprocess.run(
-        [sys.executable, "-c", code], env={**environment, **env}, capture_output=True, text=True, timeout=300
-    )
-    assert completed.returncode == 0, completed.stderr
-    return completed.stdout.strip()
-
-
-def test_jit_cache_works_from_a_read_only_package(tmp_path: Path) -> None:
-    site = tmp_path / "site"
-    package = site / "service"
-    shutil.copytree(SERVICE_DIR, package, ignore=shutil.ignore_patterns("__pycache__", "models"))
-    folders = [package, *(path for path in package.rglob("*") if path.is_dir())]
-    for folder in folders:
-        folder.chmod(stat.S_IRUSR | stat.S_IXUSR)
-    cache = tmp_path / "numba-cache"
-    code = (
-        "import numpy as np; from service import jit; from service.optimization import aggregate; "
-        "aggregate(np.ones((2, 3, 4), np.int16), p1=1.0, p2=2.0); print(jit.CACHE_DIR)"
-    )
-    try:
-        printed = _python(
-            code, ADSM_NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(site), PYTHONDONTWRITEBYTECODE="1"
-        )
-    finally:
-        for folder in folders:
-            folder.chmod(stat.S_IRWXU)
-    assert Path(printed) == cache.resolve()
-    assert any(cache.rglob("*.nbi")) and any(cache.rglob("*.nbc"))  # index and compiled code
-    assert not any(package.rglob("*.nb*"))
-
-
-def test_jit_cache_dir_falls_back_when_unwritable(tmp_path: Path) -> None:
-    blocker = tmp_path / "a-file"
-    blocker.write_text("not a folder")
-    code = "from service import jit; print(jit.CACHE_DIR)"
-    fallback = tmp_path / "numba"
-    printed = _python(code, ADSM_NUMBA_CACHE_DIR=str(blocker / "cache"), NUMBA_CACHE_DIR=str(fallback))
-    assert Path(printed) == fallback.resolve()
-    # Nothing usable from the environment or the home folder: a fresh temporary folder.
-    printed = _python(
-        code, ADSM_NUMBA_CACHE_DIR=str(blocker / "a"), XDG_CACHE_HOME=str(blocker), TMPDIR=str(tmp_path)
-    )
-    assert Path(printed).parent == tmp_path.resolve() and Path(printed).name.startswith("adsm-numba-")

@@ -21,6 +21,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
+from service import jit
 from service.api.metrics import ServiceMetrics
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
 from service.api.settings import Settings
@@ -61,6 +62,8 @@ class InferenceService:
 
     def load(self) -> None:
         """Load the model folder (hashes verified by the towers); raises ModelError for a bad folder."""
+        if not jit.is_configured():  # embedded without `adsm serve`: the service starts here
+            jit.configure_cache()
         if self.matcher is None:
             self.matcher = Matcher.from_folder(self.settings.model_dir, threads=self.settings.threads)
         self.metrics.model.labels(name=str(self.matcher.manifest.get("name", "unknown"))).set(1)

@@ -30,6 +30,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from service import jit
+
+    jit.configure_cache()  # the compiled-kernel cache is chosen when the command starts, not at import
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
