@@ -46,8 +46,8 @@ def _service(request: Request) -> InferenceService:
 @router.get("/healthz", tags=["operations"], summary="Liveness: the process answers and warm-up did not fail")
 async def healthz(request: Request) -> JSONResponse:
     service = _service(request)
-    if service.failure is not None:
-        return JSONResponse({"status": "failed", "detail": service.failure}, status_code=503)
+    if service.failure is not None:  # absolute paths cut as in /v1/model: a probe is no place for them
+        return JSONResponse({"status": "failed", "detail": public_manifest(service.failure)}, status_code=503)
     return JSONResponse({"status": "ok"})
 
 
@@ -58,7 +58,7 @@ async def healthz(request: Request) -> JSONResponse:
 async def readyz(request: Request) -> JSONResponse:
     service = _service(request)
     if not service.ready or service.draining:
-        detail = service.failure or "the model is warming up"
+        detail = public_manifest(service.failure) if service.failure else "the model is warming up"
         if service.draining:
             detail = "the server is shutting down"
         return JSONResponse({"status": "not ready", "detail": detail}, status_code=503,

@@ -8,10 +8,13 @@ Options become the ``ADSM_*`` environment variables the app reads, so that every
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 
 _APP_FACTORY = "service.api.app:create_app"
+
+logger = logging.getLogger("adsm")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -45,11 +48,31 @@ def _env_port() -> int:
         raise ValueError(f"ADSM_PORT must be an integer, got {raw!r}") from None
 
 
+def _check_model(settings) -> str | None:
+    """Load the model folder and warm it up once, before the port opens; the problem in one line, if any.
+
+    Hashes and schema (load), the towers against the manifest's channels and receptive field, then the
+    whole pipeline on a tiny pair (Matcher.warmup): a folder that cannot serve, e.g. a hand-edited
+    manifest, stops the start here instead of opening a port that answers 503. The kernels it compiles
+    stay compiled in this process, and in the cache for every worker, so the app's own warm-up is short.
+    """
+    from service.features import ModelError
+    from service.matcher import Matcher
+
+    try:
+        Matcher.from_folder(settings.model_dir, threads=settings.threads).warmup()
+    except ModelError as error:
+        return " ".join(str(error).split())
+    except Exception as error:  # any warm-up failure: the same one line, never a traceback
+        logger.debug("warm-up failed", exc_info=True)
+        return " ".join(f"model warm-up failed: {type(error).__name__}: {error}".split())
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from service.api.settings import Settings
-    from service.features import ModelError, default_model_dir, load_manifest, verify_files
 
     host = args.host or os.environ.get("ADSM_HOST") or "127.0.0.1"
     port = _env_port() if args.port is None else args.port
@@ -65,11 +88,8 @@ def run(args: argparse.Namespace) -> int:
         # N workers each using every core would only fight over them.
         os.environ["ADSM_THREADS"] = str(max(1, (os.cpu_count() or 1) // args.workers))
     settings = Settings.from_env()  # fail here, with one line, on a malformed variable
-    try:  # one clear line now rather than a traceback from every worker's start-up
-        folder = settings.model_dir or default_model_dir()
-        verify_files(folder, load_manifest(folder))
-    except ModelError as error:
-        print(f"adsm: error: {error}", file=sys.stderr)
+    if problem := _check_model(settings):
+        print(f"adsm: error: {problem}", file=sys.stderr)
         return 1
     uvicorn.run(
         _APP_FACTORY,

@@ -142,8 +142,8 @@ class FeatureTowers:
         expected = (1, self.channels, *batch.shape[2:])
         if features.shape != expected or features.dtype != np.float32:
             raise ModelError(
-                f"{self.folder / name} returned {features.dtype} {features.shape}, "
-                f"expected float32 {expected}"
+                f"{self.folder.name}/{name} returned {features.dtype} {features.shape}, expected float32 "
+                f"{expected} (manifest channels {self.channels})"
             )
         return features[0]
 
@@ -158,7 +158,36 @@ class FeatureTowers:
         right_batch = self._prepare(right, "right")
         return self._run("left.onnx", left_batch), self._run("right.onnx", right_batch)
 
-    def warmup(self, *, height: int = 64, width: int = 64) -> None:
-        """Run both towers once so the first request does not pay for session initialisation."""
-        blank = np.zeros((height, width, 3), np.uint8)
-        self(blank, blank)
+    def warmup(self) -> None:
+        """Run both towers once (session initialisation) and check them against the manifest.
+
+        The manifest is not hashed (it holds the hashes), so a hand-edited ``channels`` or
+        ``receptive_field`` would pass :func:`verify_files`; both are measured here instead. Channels: the
+        graph's declared output and the features of a run. Receptive field: one pixel of a random image
+        is changed, and the features that change must reach exactly ``receptive_field // 2`` pixels from
+        it (farther: the tiles would cut context; nearer: the manifest overstates it). Raises
+        :class:`ModelError` with one line naming the file, the manifest value and the measured one.
+        """
+        halo = int(self.manifest["receptive_field"]) // 2
+        size = 2 * (halo + 2) + 1  # room to see a reach of up to halo + 2
+        rng = np.random.default_rng(0)
+        image = rng.integers(0, 256, (size, size, 3), dtype=np.uint8)
+        changed = image.copy()
+        centre = size // 2
+        changed[centre, centre] = 255 - changed[centre, centre]
+        for name in TOWER_FILES:
+            declared = self._sessions[name].get_outputs()[0].shape
+            if len(declared) != 4 or (isinstance(declared[1], int) and declared[1] != self.channels):
+                raise ModelError(
+                    f"{self.folder.name}/{name} outputs shape {declared}, but the manifest says "
+                    f"channels {self.channels}"
+                )
+            base = self._run(name, self._prepare(image, "probe"))
+            moved = np.abs(self._run(name, self._prepare(changed, "probe")) - base).max(axis=0) > 0
+            rows, columns = np.nonzero(moved)
+            reach = int(max(np.abs(rows - centre).max(), np.abs(columns - centre).max())) if rows.size else 0
+            if reach != halo:
+                raise ModelError(
+                    f"{self.folder.name}/{name} has a receptive field of {2 * reach + 1} pixels (a change "
+                    f"reaches {reach} px), but the manifest says receptive_field {halo * 2 + 1}"
+                )
