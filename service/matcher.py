@@ -1,6 +1,6 @@
 """Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
 
-    towers -> cost_volume -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check) -> fill
+    towers -> cost_volume -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check) -> fill -> border
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
@@ -30,7 +30,7 @@ from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, default_model_dir
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
-from service.filling import fill_invalid
+from service.filling import fill_border_band, fill_invalid
 from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, aggregate
 from service.refinement import refine_subpixel
@@ -56,6 +56,7 @@ class MatchOptions:
     subpixel: bool = True
     lr_check: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
+    border: bool = True  # give the left border band (match left of the right image) its surface's disparity
 
     def __post_init__(self) -> None:
         if self.max_disparity is not None:
@@ -70,7 +71,7 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        for name in ("sgm", "subpixel", "lr_check", "fill"):
+        for name in ("sgm", "subpixel", "lr_check", "fill", "border"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -254,5 +255,8 @@ class Matcher:
                 disparity[validity != Validity.VALID] = np.nan
         else:
             validity = np.zeros(disparity.shape, np.uint8)
+        if options.border:
+            disparity, validity = fill_border_band(disparity, validity)
+            lap("border")
         timings["total"] = time.perf_counter() - start
         return StereoResult(disparity, validity, timings)

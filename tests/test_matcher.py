@@ -59,23 +59,31 @@ def test_slanted_plane_bad1_below_5_percent(matcher: Matcher) -> None:
 def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     left, right, _, _ = slanted_plane_pair(height=40, width=64)
     options = {"max_disparity": 24}
-    raw = matcher(left, right, MatchOptions(**options, sgm=False, subpixel=False, lr_check=False))
+    bare = MatchOptions(**options, sgm=False, subpixel=False, lr_check=False, border=False)
+    raw = matcher(left, right, bare)
     assert np.all(raw.validity == Validity.VALID)
     assert np.all(raw.disparity == np.round(raw.disparity))  # integers without sub-pixel
     assert "subpixel" not in raw.timings and "lr_check" not in raw.timings
 
-    unfilled = matcher(left, right, MatchOptions(**options, fill=False))
+    unfilled = matcher(left, right, MatchOptions(**options, fill=False, border=False))
     invalid = unfilled.validity != Validity.VALID
     assert invalid.any()  # at least the columns whose match lies left of the right image
     assert set(np.unique(unfilled.validity[invalid])) <= {Validity.OCCLUDED, Validity.MISMATCH}
     assert np.all(np.isnan(unfilled.disparity[invalid])) and not np.isnan(unfilled.disparity[~invalid]).any()
 
-    filled = matcher(left, right, MatchOptions(**options))
+    filled = matcher(left, right, MatchOptions(**options, border=False))
     assert set(np.unique(filled.validity)) <= {
         Validity.VALID, Validity.FILLED_OCCLUSION, Validity.FILLED_MISMATCH, Validity.NO_DATA
     }
     np.testing.assert_array_equal(filled.disparity[~invalid], unfilled.disparity[~invalid])
-    assert "fill" in filled.timings
+    assert "fill" in filled.timings and "border" not in filled.timings
+
+    banded = matcher(left, right, MatchOptions(**options))      # the default adds the border band step
+    changed = banded.disparity != filled.disparity
+    assert "border" in banded.timings and changed.any()
+    assert np.all(banded.validity[changed] == Validity.FILLED_OCCLUSION)
+    columns = np.broadcast_to(np.arange(left.shape[1]), changed.shape)
+    assert np.all(columns[changed] < banded.disparity[changed])
 
 
 def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:
