@@ -201,7 +201,8 @@ def multipart_parts(response: httpx.Response) -> dict[str, tuple[str, bytes]]:
 
 async def test_validity_as_multipart_mixed(client: httpx.AsyncClient) -> None:
     response = await client.post(
-        "/disparity", params={"max_disparity": 16, "format": "npy", "validity": "true", "fill": "false"},
+        "/disparity", params={"max_disparity": 16, "format": "npy", "validity": "true", "fill": "false",
+                              "border": "false"},
         files=PAIR,
     )
     assert response.headers["content-type"].startswith("multipart/mixed; boundary=")
@@ -212,8 +213,8 @@ async def test_validity_as_multipart_mixed(client: httpx.AsyncClient) -> None:
     validity = np.asarray(Image.open(io.BytesIO(parts["validity"][1])))
     assert validity.dtype == np.uint8 and validity.shape == (HEIGHT, WIDTH)
     assert set(np.unique(validity)) <= {int(code) for code in Validity}
-    # Without filling, exactly the pixels that failed the check have no disparity; the left strip
-    # (x < SHIFT) has no match in the right view at all.
+    # Without filling or the border band, exactly the pixels that failed the check have no disparity;
+    # the left strip (x < SHIFT) has no match in the right view at all.
     np.testing.assert_array_equal(np.isnan(disparity), validity != Validity.VALID)
     assert (validity[:, :SHIFT] != Validity.VALID).mean() > 0.75  # a few chance matches remain
 
@@ -234,6 +235,10 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     assert not np.isnan(await disparity(fill="true")).any()
     smooth = await disparity(p1=0, p2=0, lr_check="false")  # no smoothness: a plain NCC winner
     assert not np.array_equal(smooth, unchecked)
+    # The border band step gives the left strip (x < SHIFT, match outside the right image) the shift.
+    banded, unbanded = await disparity(), await disparity(border="false")
+    strip = (slice(None), slice(0, SHIFT))
+    assert np.mean(np.abs(banded[strip] - SHIFT) <= 1) > np.mean(np.abs(unbanded[strip] - SHIFT) <= 1)
 
 
 # --- POST /depth and /pointcloud ----------------------------------------------------------------------------

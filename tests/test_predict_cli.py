@@ -115,7 +115,8 @@ def test_timings_and_validity_and_switches(capsys, pair, tmp_path):
     out, validity = tmp_path / "d.npy", tmp_path / "v.png"
     code, stdout, err = _run(
         capsys, *map(str, pair), "-o", str(out), "--max-disparity", "16", "--timings", "--validity",
-        str(validity), "--no-fill", "--no-subpixel", "--p1", "10", "--p2", "100", "--threads", "1",
+        str(validity), "--no-fill", "--no-border", "--no-subpixel", "--p1", "10", "--p2", "100",
+        "--threads", "1",
     )
     assert code == 0 and stdout == ""
     lines = err.strip().splitlines()
@@ -123,6 +124,7 @@ def test_timings_and_validity_and_switches(capsys, pair, tmp_path):
     timings = json.loads(lines[0])
     for stage in ("decode", "load_model", "towers", "cost_volume", "sgm", "disparity", "encode", "total"):
         assert timings[stage] >= 0, stage
+    assert "fill" not in timings and "border" not in timings
     assert timings["total"] >= timings["towers"] + timings["sgm"]
     disparity = np.load(out)
     finite = disparity[np.isfinite(disparity)]
@@ -130,7 +132,7 @@ def test_timings_and_validity_and_switches(capsys, pair, tmp_path):
     with Image.open(validity) as image:
         codes = np.asarray(image)
     assert codes.shape == (40, 80)
-    assert np.isnan(disparity[codes != 0]).all()  # --no-fill: invalid pixels stay NaN
+    assert np.isnan(disparity[codes != 0]).all()  # --no-fill --no-border: invalid pixels stay NaN
     assert (codes == 0).mean() > 0.5
 
 

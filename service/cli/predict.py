@@ -43,6 +43,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--no-lr-check", action="store_true", help="skip the inner left-right check")
     add("--no-fill", action="store_true", help="leave invalid pixels unfilled (NaN)")
     add("--no-subpixel", action="store_true", help="integer disparities (no quadratic fit)")
+    add("--no-border", action="store_true",
+        help="leave the left border band (match left of the right image) as matched")
     add("--validity", type=Path, metavar="PATH", help="also write the validity map (.png or .npy)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime threads (default: the available CPUs)")
     add("--max-memory-mib", type=int, default=DEFAULT_MAX_REQUEST_BYTES // 2**20, metavar="MIB",
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         subpixel=not args.no_subpixel,
         lr_check=not args.no_lr_check,
         fill=not args.no_fill,
+        border=not args.no_border,
     )
     matcher.check_memory(*left_size, options)  # MemoryLimitError (a ValueError): one line, exit 1
     loaded = time.perf_counter()
