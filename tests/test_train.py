@@ -148,6 +148,15 @@ def test_patch_mode_iterations(tmp_path):
     assert [r["examples"] for r in rows] == [8, 8] and all(np.isfinite(r["loss"]) for r in rows)
 
 
+def test_patch_mode_cuts_the_configs_own_patch_size(tmp_path):
+    # A 29-px tower fed 37-px patches would output 9x9 instead of 1x1 and the loss would fail.
+    out = tmp_path / "patch29"
+    config = TrainConfig(**{**TINY, "batch_size": 4}, config="29-4conv", mode="patch", iterations=1,
+                         val_every=1, out=str(out))
+    train(config)
+    assert len(history(out)) == 1
+
+
 def test_dense_and_patch_objectives_agree_on_the_same_pixel():
     # A conv-only tower: with a deconv, an isolated patch feeds it zeros where a crop gives real pixels.
     torch.manual_seed(0)

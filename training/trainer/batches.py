@@ -38,6 +38,7 @@ class BatchSpec:
     width: int = 256
     max_disparity: int = 96        # synthetic scenes only: nearest surface
     patches_per_pair: int = 32     # patch mode: patch pairs cut from each generated pair
+    patch: int = 37                # patch mode: the tower's left patch side (the config's ``patch``)
     augmentation: str = DEFAULT_AUGMENTATION
     nonoccluded_only: bool = True  # an occluded pixel has no match to learn (where the data set says so)
 
@@ -91,7 +92,7 @@ class TrainingData:
         parts = []
         for index in indices:
             sample, rng = self.sample(index)
-            pairs = random_patch_pairs(sample, rng, count=self.spec.patches_per_pair,
+            pairs = random_patch_pairs(sample, rng, count=self.spec.patches_per_pair, patch=self.spec.patch,
                                        nonoccluded_only=self.spec.nonoccluded_only)
             left, right = self._photometric(pairs.left, pairs.right, rng)
             parts.append(dataclasses.replace(pairs, left=left, right=right))

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint, save_checkpoint
-from training.networks import build_tower_pair
+from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
@@ -88,7 +88,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         raise ValueError("patch mode takes patch pairs in groups of 4 per batch (batch size % 4 == 0)")
     per_example = config.batch_size // 4 if config.mode == "patch" else 1
     spec = BatchSpec(height=config.crop[0], width=config.crop[1], max_disparity=config.max_disparity,
-                     patches_per_pair=per_example, augmentation=config.augmentation)
+                     patches_per_pair=per_example, augmentation=config.augmentation,
+                     patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)
     examples_per_step = 4 if config.mode == "patch" else config.batch_size
 
