@@ -20,8 +20,10 @@ from starlette.staticfiles import StaticFiles
 import service
 from service.api import routes_disparity, routes_ops
 from service.api.body_timeout import BodyDeadline
+from service.api.delivery import AnswerDelivery
 from service.api.draining import install_sigterm_drain
 from service.api.errors import install_error_handlers
+from service.api.framing import RequestFraming
 from service.api.inference import InferenceService
 from service.api.limits import BodySizeLimit
 from service.api.metrics import MetricsMiddleware
@@ -63,8 +65,11 @@ def create_app(settings: Settings | None = None, *, matcher: Matcher | None = No
         description=DESCRIPTION,
         lifespan=lifespan,
         middleware=[
-            Middleware(RequestIdMiddleware),  # outermost: every response, even a crash, gets its ID
+            # Outermost, so that its send is the server's: every answer leaves in bounded pieces.
+            Middleware(AnswerDelivery, write_timeout_s=settings.write_timeout_s, unsent=inference.unsent),
+            Middleware(RequestIdMiddleware),  # every response, even a crash, gets its ID
             Middleware(MetricsMiddleware, metrics=inference.metrics),
+            Middleware(RequestFraming),
             Middleware(BodySizeLimit, max_body_bytes=settings.max_body_bytes),
             Middleware(BodyDeadline, timeout_s=settings.body_timeout_s),
         ],

@@ -22,6 +22,7 @@ from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
 from service import jit
+from service.api.delivery import Unsent
 from service.api.metrics import ServiceMetrics
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
 from service.api.settings import Settings
@@ -53,6 +54,8 @@ class InferenceService:
         self.ready = False
         self.failure: str | None = None
         self.draining = False  # SIGTERM received: admitted requests finish, new ones get 503
+        self.unsent = Unsent()  # answer bytes slow clients have not taken yet (service/api/delivery.py)
+        self.metrics.unsent.set_function(lambda: self.unsent.bytes)
 
     @property
     def manifest(self) -> dict[str, Any]:
@@ -84,12 +87,17 @@ class InferenceService:
 
     async def match(self, request: Request, options: MatchOptions) -> StereoMatch:
         if self.draining:
+            # Refused before its body was read: take the body first (bounded by the size limit and the body
+            # deadline, nothing kept), so that closing the connection after the 503 does not reset it
+            # under a client still sending and lose the answer.
+            await _discard_body(request)
             raise HTTPException(
                 503, "the server is shutting down; retry (another instance may answer)",
                 headers={**self._warming_headers(), "Connection": "close"},
             )
         if not self.ready:
             raise HTTPException(503, "the model is warming up", headers=self._warming_headers())
+        self._check_unsent()
         try:
             admission = self.slot.admit()
         except QueueFull as full:
@@ -106,6 +114,7 @@ class InferenceService:
         left, right = await run_in_threadpool(self._decode_pair, left_bytes, right_bytes)
         timings = {"decode": time.perf_counter() - started}
         del left_bytes, right_bytes
+        self._check_unsent()
         queued = time.perf_counter()
         try:
             began, result = await self.slot.run(
@@ -120,6 +129,16 @@ class InferenceService:
         # The matcher's own "total" is left out: the route reports the whole request's total instead.
         timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
         return StereoMatch(result=result, left=left, timings=timings, started=admitted)
+
+    def _check_unsent(self) -> None:
+        """503 while slow clients leave more than ADSM_MAX_UNSENT_BYTES of answers untaken: checked on
+        admission and again before the inference, so answers made meanwhile stay within the limit."""
+        if self.unsent.bytes > self.settings.max_unsent_bytes:
+            raise HTTPException(
+                503, f"{self.unsent.bytes} bytes of answers are still waiting for slow clients, over this "
+                f"server's limit of {self.settings.max_unsent_bytes} (ADSM_MAX_UNSENT_BYTES); retry",
+                headers=self._warming_headers(),
+            )
 
     def _check_request(self, height: int, width: int, options: MatchOptions) -> None:
         """Every size limit of a request, from the image headers: nothing is allocated before they pass."""
@@ -198,6 +217,15 @@ def _timed_match(
 ) -> tuple[float, StereoResult]:
     began = time.perf_counter()  # when the slot was won: the queue wait ends here
     return began, matcher(left, right, options)
+
+
+async def _discard_body(request: Request) -> None:
+    """Read the request's body to its end and drop it."""
+    try:
+        async for _ in request.stream():
+            pass
+    except ClientDisconnect:
+        raise HTTPException(499, "client disconnected during the upload") from None
 
 
 async def _read_pair(request: Request) -> tuple[bytes, bytes]:

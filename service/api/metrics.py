@@ -56,6 +56,8 @@ class ServiceMetrics:
         waiting.set_function(lambda: slot.waiting)
         running = Gauge("adsm_inference_running", "1 while an inference runs.", registry=self.registry)
         running.set_function(lambda: int(slot.running))
+        self.unsent = Gauge("adsm_unsent_answer_bytes", "Answer bytes not yet taken by slow clients.",
+                            registry=self.registry)
         self.ready = Gauge("adsm_ready", "1 once the model is loaded and warmed.", registry=self.registry)
         self.model = Gauge("adsm_model_info", "The model being served (value 1).", ("name",),
                            registry=self.registry)

@@ -30,29 +30,37 @@ class Settings:
     # Seconds a request may take to deliver its whole body (408 after): an upload holds a queue place,
     # so without a deadline a few trickling clients could keep every place and everyone else at 503.
     body_timeout_s: float = 30.0
+    # Seconds a client has to take a whole answer, from its first byte (service/api/delivery.py): a client
+    # that does not read would otherwise pin its answer in memory for as long as it keeps the socket open.
+    write_timeout_s: float = 60.0
+    # Answer bytes not yet taken by slow clients, over all connections; above it new stereo requests get 503.
+    max_unsent_bytes: int = 128 * 1024 * 1024
     warmup: bool = True  # compile and run every kernel before /readyz turns ready
 
     def __post_init__(self) -> None:
         for name in ("queue_size",):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("max_body_bytes", "max_pixels", "max_disparity", "max_cost_cells", "max_request_bytes"):
+        for name in ("max_body_bytes", "max_pixels", "max_disparity", "max_cost_cells", "max_request_bytes",
+                     "max_unsent_bytes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.threads is not None and not 1 <= self.threads <= MAX_THREADS:
             raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {self.threads}")
-        timeout = self.body_timeout_s
-        # bool is an int to Python, and nan/inf would silently mean "no deadline": refuse them all.
-        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not (
-            math.isfinite(timeout) and timeout > 0
-        ):
-            raise ValueError(f"body_timeout_s must be a positive, finite number of seconds, got {timeout!r}")
+        for name in ("body_timeout_s", "write_timeout_s"):
+            timeout = getattr(self, name)
+            # bool is an int to Python, and nan/inf would silently mean "no deadline": refuse them all.
+            if isinstance(timeout, bool) or not isinstance(timeout, int | float) or not (
+                math.isfinite(timeout) and timeout > 0
+            ):
+                raise ValueError(f"{name} must be a positive, finite number of seconds, got {timeout!r}")
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
         """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
         ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``, ``ADSM_MAX_REQUEST_BYTES``,
-        ``ADSM_BODY_TIMEOUT_S`` and ``ADSM_WARMUP``; unset or empty keeps the default."""
+        ``ADSM_BODY_TIMEOUT_S``, ``ADSM_WRITE_TIMEOUT_S``, ``ADSM_MAX_UNSENT_BYTES`` and ``ADSM_WARMUP``;
+        unset or empty keeps the default."""
         env = os.environ if environ is None else environ
         values: dict[str, object] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
@@ -66,6 +74,8 @@ class Settings:
             ("max_cost_cells", _parse_int),
             ("max_request_bytes", _parse_int),
             ("body_timeout_s", _parse_float),
+            ("write_timeout_s", _parse_float),
+            ("max_unsent_bytes", _parse_int),
             ("warmup", _parse_bool),
         ):
             name = f"ADSM_{field.upper()}"
