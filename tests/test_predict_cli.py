@@ -139,3 +139,122 @@ def test_timings_and_validity_and_switches(capsys, pair, tmp_path):
 def test_bad_option_values(capsys, pair, tmp_path):
     code, _, err = _run(capsys, *map(str, pair), "-o", str(tmp_path / "d.png"), "--max-disparity", "0")
     _assert_one_line_error(code, err)
+
+
+# --- calibration, metric outputs, many pairs, 16-bit input, diagnostics (issue 12) ---
+
+CALIB = "cam0=[400 0 39.5; 0 400 19.5; 0 0 1]\ncam1=[400 0 41.5; 0 400 19.5; 0 0 1]\nbaseline=100\n"
+
+
+def test_depth_and_pointcloud_from_calib(capsys, pair, tmp_path):
+    from service.geometry import read_ply
+
+    calib = tmp_path / "calib.txt"
+    calib.write_text(CALIB)  # f = 400 px, B = 0.1 m, doffs = 2: d = 4 -> z = 40 / 6 m
+    out, depth, cloud = tmp_path / "d.npy", tmp_path / "z.npy", tmp_path / "c.ply"
+    code, stdout, err = _run(capsys, *map(str, pair), "-o", str(out), "--max-disparity", "16", "--model",
+                             str(SHIPPED), "--calib", str(calib), "--depth", str(depth), "--pointcloud",
+                             str(cloud))
+    assert (code, stdout, err) == (0, "", "")
+    z = np.load(depth)
+    assert np.nanmedian(z[8:-8, 16:-8]) == pytest.approx(40 / 6, rel=0.03)
+    vertices = read_ply(cloud.read_bytes())
+    assert len(vertices) == np.isfinite(z).sum()
+    np.testing.assert_allclose(np.sort(vertices["z"]), np.sort(z[np.isfinite(z)]), rtol=1e-6)
+    # --drop-filled and --max-depth shrink the cloud; png16 depth is in millimetres
+    code, _, err = _run(capsys, *map(str, pair), "-o", str(out), "--max-disparity", "16", "--model",
+                        str(SHIPPED), "--calib", str(calib), "--pointcloud", str(cloud), "--drop-filled",
+                        "--max-depth", "6.8", "--depth", str(tmp_path / "z.png"))
+    assert code == 0, err
+    assert 0 < len(read_ply(cloud.read_bytes())) < len(vertices)
+    with Image.open(tmp_path / "z.png") as image:
+        millimetres = np.asarray(image)
+    assert np.median(millimetres[millimetres > 0]) == pytest.approx(6667, rel=0.03)
+
+
+def test_metric_output_errors(capsys, pair, tmp_path):
+    out = str(tmp_path / "d.png")
+    code, _, err = _run(capsys, *map(str, pair), "-o", out, "--depth", str(tmp_path / "z.npy"))
+    _assert_one_line_error(code, err, "--calib")
+    (tmp_path / "calib.txt").write_text("cam0=[1 2 3]\n")
+    code, _, err = _run(capsys, *map(str, pair), "-o", out, "--calib", str(tmp_path / "calib.txt"),
+                        "--depth", str(tmp_path / "z.npy"))
+    _assert_one_line_error(code, err, "calib.txt")
+    code, _, err = _run(capsys, *map(str, pair), "-o", out, "--depth", str(tmp_path / "z.jpg"))
+    _assert_one_line_error(code, err, "depth format")
+
+
+def test_many_pairs_one_process(capsys, pair, tmp_path):
+    rig = tmp_path / "rig"
+    (rig / "left").mkdir(parents=True)
+    (rig / "right").mkdir()
+    for name in ("a", "b", "c"):
+        shutil.copy(pair[0], rig / "left" / f"{name}.png")
+        shutil.copy(pair[1], rig / "right" / f"{name}.png")
+    (rig / "left" / "d.png").write_bytes(b"not an image")  # fails
+    (rig / "right" / "d.png").write_bytes(b"not an image")
+    shutil.copy(pair[0], rig / "left" / "e.png")  # no right image: fails
+    template = str(tmp_path / "out" / "{name}.npy")
+    code, stdout, err = _run(capsys, "--data", str(rig), "-o", template, "--max-disparity", "16",
+                             "--model", str(SHIPPED), "--validity", str(tmp_path / "out" / "{name}-v.png"))
+    assert code == 1 and stdout == ""
+    assert sorted(path.name for path in (tmp_path / "out").glob("?.npy")) == ["a.npy", "b.npy", "c.npy"]
+    assert (tmp_path / "out" / "a-v.png").is_file()
+    assert "adsm: error: d:" in err and "adsm: error: e: no right image" in err
+    assert "[3/5] c" in err and "pairs/s" in err
+    assert "3 pairs written, 0 skipped, 2 failed" in err.strip().splitlines()[-1]
+    # shards partition the pairs; --skip-existing skips written ones; --out-dir names outputs
+    listing = tmp_path / "pairs.txt"
+    listing.write_text("".join(f"rig/left/{n}.png rig/right/{n}.png\n" for n in ("a", "b", "c")))
+    seen = []
+    for shard in ("0/2", "1/2"):
+        code, _, err = _run(capsys, "--pairs", str(listing), "--out-dir", str(tmp_path / "s"), "--shard",
+                            shard, "--max-disparity", "16", "--model", str(SHIPPED))
+        assert code == 0, err
+        seen.append(sum(line.startswith("[") for line in err.splitlines()))
+    assert seen == [2, 1] and len(list((tmp_path / "s").glob("*.png"))) == 3
+    code, _, err = _run(capsys, "--pairs", str(listing), "--out-dir", str(tmp_path / "s"), "--skip-existing",
+                        "--model", str(SHIPPED))
+    assert code == 0 and "0 pairs written, 3 skipped" in err
+    code, _, err = _run(capsys, "--data", str(rig), "-o", str(tmp_path / "one.png"))
+    _assert_one_line_error(code, err, "{name}")
+    code, _, err = _run(capsys, "--pairs", str(listing), "--out-dir", str(tmp_path), "--shard", "2/2")
+    _assert_one_line_error(code, err, "--shard")
+
+
+def test_twelve_bit_grey_png_keeps_its_levels(capsys, tmp_path):
+    from service.cli.predict import _read
+
+    ramp = np.tile(np.arange(0, 4096, 8, dtype=np.uint16), (4, 1))  # 12-bit samples in a 16-bit PNG
+    Image.fromarray(ramp).save(tmp_path / "mono12.png")
+    grey = _read(tmp_path / "mono12.png", "left")
+    assert grey.shape == (4, 512, 3) and grey.dtype == np.uint8
+    assert grey[0, -1, 0] == 255 and len(np.unique(grey)) > 200  # was 16 levels (>> 8)
+    rgb16 = tmp_path / "rgb16.png"
+    import zlib as _zlib
+
+    raw = b"".join(b"\0" + np.full((8, 3), 1000, ">u2").tobytes() for _ in range(8))
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (len(body).to_bytes(4, "big") + kind + body
+                + _zlib.crc32(kind + body).to_bytes(4, "big"))
+
+    ihdr = (8).to_bytes(4, "big") * 2 + bytes([16, 2, 0, 0, 0])
+    rgb16.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", _zlib.compress(raw))
+                      + chunk(b"IEND", b""))
+    with pytest.raises(ValueError, match="16-bit colour PNG would lose precision"):
+        _read(rgb16, "left")
+
+
+@pytest.mark.skipif(not (Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+                         / "middlebury2003-cones" / "left.png").is_file(), reason="Cones pair not present")
+def test_swapped_pair_warns_and_exits_zero(capsys, tmp_path):
+    cones = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "middlebury2003-cones"
+    out = str(tmp_path / "d.png")
+    code, _, err = _run(capsys, str(cones / "right.png"), str(cones / "left.png"), "-o", out,
+                        "--max-disparity", "64")
+    assert code == 0
+    assert "adsm: warning: right: the pair looks swapped" in err
+    code, _, err = _run(capsys, str(cones / "left.png"), str(cones / "right.png"), "-o", out,
+                        "--max-disparity", "64")
+    assert (code, err) == (0, "")

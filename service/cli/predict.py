@@ -1,39 +1,71 @@
-"""`adsm predict LEFT RIGHT -o OUT`: one rectified pair -> a disparity map file.
+"""`adsm predict`: rectified (or calibrated raw) stereo pairs -> disparity, depth, point cloud files.
+
+One pair::
+
+    adsm predict LEFT RIGHT -o disp.png [--calib FILE --depth depth.npy --pointcloud cloud.ply]
+
+Many pairs in one process (the model is loaded and the kernels compiled once)::
+
+    adsm predict --data RIG_DIR -o 'out/{name}.png' [--depth 'out/{name}.npy'] [--shard I/N]
+    adsm predict --pairs LIST.txt --out-dir out/
+
+``--data DIR`` pairs the files of the same name in ``DIR/left`` and ``DIR/right`` (also ``image_2`` /
+``image_3`` and ``image_02/data`` / ``image_03/data``, KITTI's layouts); ``--pairs FILE`` lists one
+``LEFT RIGHT`` pair per line. Output paths are templates holding ``{name}`` (the left file's stem);
+``--out-dir DIR`` is short for ``-o DIR/{name}.<format>``. A progress line per pair and a summary go to
+stderr; a pair that fails is reported and skipped, the others are still written, and the exit status is
+1 if any failed.
 
 The format follows OUT's extension (.png -> png16, .npy, .pfm) unless --format says otherwise;
---timings prints the stage timings (seconds) as one JSON line on stderr, so stdout stays clean for
-scripts. Every expected failure (missing file, undecodable image, sizes differ, bad model folder, a pair
-whose memory plan is over --max-memory-mib) ends with one line ``adsm: error: ...`` and exit status 1,
-never a traceback. The sizes and the memory plan (service/memory.py) come from the image headers, so an
-oversized pair is refused before it is decoded.
+--timings prints the stage timings (seconds) as one JSON line on stderr per pair, so stdout stays clean
+for scripts. Every expected failure (missing file, undecodable image, sizes differ, bad model folder,
+bad calibration, a pair whose memory plan is over --max-memory-mib) ends with one line
+``adsm: error: ...`` and exit status 1, never a traceback. Warnings (a pair that looks swapped or
+unrectified, few pixels passing the check) are ``adsm: warning: ...`` lines; they do not change the
+exit status.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import sys
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from service.features import ModelError
-from service.io import FORMATS, format_for_path, image_size, read_image, write_disparity
+from service.io import ALLOWED_FORMATS, FORMATS, format_for_path, image_size, read_image, write_disparity
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
+
+_EXTENSION = {"png16": ".png", "npy": ".npy", "pfm": ".pfm", "color": ".png"}
+_LAYOUTS = (("left", "right"), ("image_2", "image_3"), ("image_02/data", "image_03/data"))
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "predict",
-        help="compute the disparity map of one rectified stereo pair",
-        description="Compute the disparity map of one rectified stereo pair and write it to a file.",
+        help="disparity (and depth, point cloud) of one stereo pair or a folder of pairs",
+        description="Compute disparity maps of stereo pairs; with --calib also depth and point clouds.",
     )
     add = parser.add_argument
-    add("left", type=Path, metavar="LEFT", help="left image (PNG, JPEG, PPM/PGM, TIFF)")
-    add("right", type=Path, metavar="RIGHT", help="right image, same size as the left")
-    add("-o", "--output", type=Path, required=True, metavar="OUT", help="disparity map file to write")
+    add("left", type=Path, metavar="LEFT", nargs="?", help="left image (PNG, JPEG, PPM/PGM, TIFF)")
+    add("right", type=Path, metavar="RIGHT", nargs="?", help="right image, same size as the left")
+    add("-o", "--output", metavar="OUT",
+        help="disparity map file to write (with --data/--pairs: a template holding {name})")
+    batch = parser.add_argument_group("many pairs in one process")
+    batch.add_argument("--data", type=Path, metavar="DIR",
+                       help="folder with left/ and right/ (or image_2/ image_3/) holding files of the "
+                       "same names")
+    batch.add_argument("--pairs", type=Path, metavar="LIST", help="text file, one 'LEFT RIGHT' pair per line")
+    batch.add_argument("--out-dir", type=Path, metavar="DIR", help="short for -o DIR/{name}.<format>")
+    batch.add_argument("--skip-existing", action="store_true", help="skip pairs whose disparity file exists")
+    batch.add_argument("--shard", metavar="I/N", help="process only pairs I, I+N, I+2N, ... (0 <= I < N)")
     add("--format", choices=FORMATS, help="png16 (x256, 0 invalid), npy (NaN invalid), pfm (inf invalid), "
         "color (RGB PNG for people); default: from OUT's extension")
     add("--max-disparity", type=int, metavar="D", help="disparity range D (default: the model's)")
@@ -45,7 +77,21 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--no-subpixel", action="store_true", help="integer disparities (no quadratic fit)")
     add("--no-border", action="store_true",
         help="leave the left border band (match left of the right image) as matched")
-    add("--validity", type=Path, metavar="PATH", help="also write the validity map (.png or .npy)")
+    add("--validity", metavar="PATH", help="also write the validity map (.png or .npy)")
+    metric = parser.add_argument_group("calibration and metric outputs")
+    metric.add_argument("--calib", type=Path, metavar="FILE",
+                        help="Middlebury calib.txt, KITTI calib_cam_to_cam.txt, or OpenCV .yml/.xml")
+    metric.add_argument("--calib-units", choices=("m", "cm", "mm"), default="m",
+                        help="unit of T in an OpenCV file (default m)")
+    metric.add_argument("--rectified", action="store_true",
+                        help="the images are rectified already although the OpenCV file has K D R1 R2")
+    metric.add_argument("--depth", metavar="FILE", help="depth map: .npy (metres), .png (uint16 mm), .pfm")
+    metric.add_argument("--pointcloud", metavar="FILE.ply",
+                        help="binary PLY, coloured, metres, left camera frame")
+    metric.add_argument("--max-depth", type=float, metavar="M", help="no depth beyond M metres")
+    metric.add_argument("--drop-filled", action="store_true",
+                        help="depth and points only where the disparity was measured (not filled)")
+    add("--no-check", action="store_true", help="skip the swapped/unrectified pair diagnostics")
     add("--threads", type=int, metavar="N", help="ONNX Runtime threads (default: the available CPUs)")
     add("--max-memory-mib", type=int, default=DEFAULT_MAX_REQUEST_BYTES // 2**20, metavar="MIB",
         help="refuse a pair whose memory plan (images, features, tower tiles, cost volumes, results) "
@@ -54,20 +100,46 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Pair:
+    name: str
+    left: Path
+    right: Path | None  # None: the right image is missing (reported as a failed pair)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Targets:
+    disparity: str
+    format: str
+    validity: str | None
+    depth: str | None
+    pointcloud: str | None
+
+    def path(self, template: str, name: str) -> Path:
+        return Path(template.replace("{name}", name))
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
-    output_format = args.format or format_for_path(args.output)
-    if args.validity is not None and args.validity.suffix.lower() not in (".png", ".npy"):
-        raise ValueError(f"--validity must name a .png or .npy file, got {str(args.validity)!r}")
+    pairs, batch = _pairs(args)
+    targets = _targets(args, batch)
     if args.max_memory_mib < 1:
         raise ValueError(f"--max-memory-mib must be >= 1, got {args.max_memory_mib}")
-    left_size = _size(args.left, "left")
-    right_size = _size(args.right, "right")
-    if left_size != right_size:
-        raise ValueError(
-            f"left and right images differ in size: {left_size[1]}x{left_size[0]} vs "
-            f"{right_size[1]}x{right_size[0]} (a rectified pair has equal sizes)"
-        )
+    if args.max_depth is not None and not (math.isfinite(args.max_depth) and args.max_depth > 0):
+        raise ValueError(f"--max-depth must be a positive number of metres, got {args.max_depth}")
+    if (targets.depth or targets.pointcloud) and args.calib is None:
+        raise ValueError("--depth and --pointcloud need --calib FILE (focal length and baseline)")
+    if not batch:
+        _check_sizes(pairs[0])  # refuse before the model loads, from the headers alone
+
+    calibration = None
+    if args.calib is not None:
+        from service.calibration import read_calibration
+
+        first = pairs[0].left if pairs else None
+        header_size = _size(first, "left") if first is not None and first.is_file() else None
+        calibration = read_calibration(args.calib, image_size=header_size, units=args.calib_units,
+                                       rectified=args.rectified)
 
     # Imported here so that `adsm --help` does not pay for Numba.
     from service.matcher import Matcher, MatchOptions
@@ -88,25 +160,236 @@ def run(args: argparse.Namespace) -> int:
         fill=not args.no_fill,
         border=not args.no_border,
     )
-    matcher.check_memory(*left_size, options)  # MemoryLimitError (a ValueError): one line, exit 1
-    loaded = time.perf_counter()
-    left = _read(args.left, "left")
-    right = _read(args.right, "right")
-    decoded = time.perf_counter()
-    result = matcher(left, right, options)
-    matched = time.perf_counter()
+    runner = _Runner(args, matcher, options, targets, calibration, loaded=time.perf_counter() - started)
+    if not batch:
+        runner.one(pairs[0])
+        return 0
+    return runner.many(pairs, started)
 
-    write_disparity(args.output, result.disparity, output_format)
-    if args.validity is not None:
-        _write_validity(args.validity, result.validity)
-    if args.timings:
-        stages = {name: seconds for name, seconds in result.timings.items() if name != "total"}
-        timings = {"load_model": loaded - started, "decode": decoded - loaded, **stages}
-        timings["match"] = matched - decoded
-        timings["encode"] = time.perf_counter() - matched
-        timings["total"] = time.perf_counter() - started
-        print(json.dumps({name: round(seconds, 6) for name, seconds in timings.items()}), file=sys.stderr)
-    return 0
+
+class _Runner:
+    """Runs pairs through one loaded matcher and writes their files."""
+
+    def __init__(self, args, matcher, options, targets: _Targets, calibration, *, loaded: float) -> None:
+        self.args, self.matcher, self.options, self.targets = args, matcher, options, targets
+        self.calibration = calibration
+        self.rectifier = None
+        self.load_seconds = loaded
+        self._calibrations: dict[tuple[int, int], object] = {}
+
+    def one(self, pair: _Pair) -> None:
+        begun = time.perf_counter()
+        size = _check_sizes(pair)
+        self.matcher.check_memory(*size, self.options)  # MemoryLimitError (a ValueError): one line, exit 1
+        left = _read(pair.left, "left")
+        right = _read(pair.right, "right")
+        calibration = self._calibration_for(size)
+        if calibration is not None and calibration.needs_rectification:
+            if self.rectifier is None:
+                from service.calibration.rectify import Rectifier
+
+                self.rectifier = Rectifier(calibration)
+            left, right = self.rectifier(left, right)
+        decoded = time.perf_counter()
+        result = self.matcher(left, right, self.options)
+        matched = time.perf_counter()
+        name = pair.name
+        write = self.targets
+        _write(write.path(write.disparity, name),
+               lambda path: write_disparity(path, result.disparity, write.format))
+        if write.validity is not None:
+            _write(write.path(write.validity, name), lambda path: _write_validity(path, result.validity))
+        if calibration is not None and (write.depth or write.pointcloud):
+            self._metric(name, calibration, result, left)
+        if not self.args.no_check:
+            self._diagnose(pair, left, right, result)
+        if self.args.timings:
+            stages = {stage: seconds for stage, seconds in result.timings.items() if stage != "total"}
+            timings = {"load_model": self.load_seconds, "decode": decoded - begun, **stages}
+            timings["match"] = matched - decoded
+            timings["encode"] = time.perf_counter() - matched
+            timings["total"] = time.perf_counter() - begun + self.load_seconds
+            self.load_seconds = 0.0  # paid once
+            rounded = {stage: round(seconds, 6) for stage, seconds in timings.items()}
+            print(json.dumps(rounded), file=sys.stderr)
+
+    def many(self, pairs: list[_Pair], started: float) -> int:
+        failed: list[str] = []
+        skipped = done = 0
+        total = len(pairs)
+        for index, pair in enumerate(pairs, start=1):
+            target = self.targets.path(self.targets.disparity, pair.name)
+            if self.args.skip_existing and target.exists():
+                skipped += 1
+                continue
+            begun = time.perf_counter()
+            try:
+                if pair.right is None:
+                    raise ValueError(f"no right image named like {pair.left.name}")
+                self.one(pair)
+            except (OSError, ValueError) as error:
+                failed.append(pair.name)
+                print(f"adsm: error: {pair.name}: {error}", file=sys.stderr)
+                continue
+            done += 1
+            rate = done / max(time.perf_counter() - started, 1e-9)
+            print(f"[{index}/{total}] {pair.name} {time.perf_counter() - begun:.2f} s ({rate:.2f} pairs/s)",
+                  file=sys.stderr)
+        elapsed = time.perf_counter() - started
+        summary = f"adsm: {done} pairs written, {skipped} skipped, {len(failed)} failed in {elapsed:.1f} s"
+        if done:
+            summary += f" ({done / elapsed:.2f} pairs/s)"
+        if failed:
+            summary += ": " + ", ".join(failed[:10]) + (" ..." if len(failed) > 10 else "")
+        print(summary, file=sys.stderr)
+        return 1 if failed else 0
+
+    def _calibration_for(self, size: tuple[int, int]):
+        """The calibration for images of ``size``: as read, or scaled (Middlebury F/H/Q sizes)."""
+        calibration = self.calibration
+        if calibration is None or calibration.size is None or calibration.size == size:
+            return calibration
+        if size not in self._calibrations:
+            factor_y, factor_x = size[0] / calibration.size[0], size[1] / calibration.size[1]
+            if calibration.needs_rectification or abs(factor_x * calibration.size[0] - size[0]) > 1.0:
+                raise ValueError(
+                    f"{calibration.source}: calibrated for {calibration.size[1]}x{calibration.size[0]} "
+                    f"images, got {size[1]}x{size[0]}"
+                )
+            del factor_y
+            self._calibrations[size] = calibration.scaled(factor_x)
+        return self._calibrations[size]
+
+    def _metric(self, name: str, calibration, result, left: np.ndarray) -> None:
+        from service.geometry import (
+            depth_format_for_path,
+            depth_from_disparity,
+            encode_depth,
+            measured,
+            point_cloud_ply,
+        )
+
+        disparity = result.disparity
+        if self.args.drop_filled:
+            disparity = np.where(measured(result.validity), disparity, np.float32(np.nan))
+        depth = depth_from_disparity(disparity, focal_px=calibration.focal_px,
+                                     baseline_m=calibration.baseline_m, doffs=calibration.doffs,
+                                     max_depth=self.args.max_depth)
+        if self.targets.depth:
+            path = self.targets.path(self.targets.depth, name)
+            data = encode_depth(depth, depth_format_for_path(path))
+            _write(path, lambda target: target.write_bytes(data))
+        if self.targets.pointcloud:
+            body, _count = point_cloud_ply(depth, left, focal_px=calibration.focal_px, cx=calibration.cx,
+                                           cy=calibration.cy, focal_y_px=calibration.focal_y_px)
+            _write(self.targets.path(self.targets.pointcloud, name), lambda target: target.write_bytes(body))
+
+    def _diagnose(self, pair: _Pair, left: np.ndarray, right: np.ndarray, result) -> None:
+        from service.calibration.pair_check import check_pair
+        from service.validation.codes import Validity
+
+        valid_share = float((result.validity == Validity.VALID).mean()) if self.options.lr_check else None
+        check = check_pair(left, right, max_disparity=self.args.max_disparity or left.shape[1] // 4)
+        for warning in check.warnings(valid_share=valid_share):
+            print(f"adsm: warning: {pair.name}: {warning}", file=sys.stderr)
+
+
+def _pairs(args: argparse.Namespace) -> tuple[list[_Pair], bool]:
+    sources = [args.left is not None, args.data is not None, args.pairs is not None]
+    if sum(sources) != 1:
+        raise ValueError("give LEFT RIGHT, or --data DIR, or --pairs LIST (exactly one of them)")
+    if args.left is not None:
+        if args.right is None:
+            raise ValueError("RIGHT is missing: give LEFT RIGHT")
+        return [_Pair(args.left.stem, args.left, args.right)], False
+    pairs = _folder_pairs(args.data) if args.data is not None else _listed_pairs(args.pairs)
+    if args.shard is not None:
+        index, count = _shard(args.shard)
+        pairs = pairs[index::count]
+    return pairs, True
+
+
+def _folder_pairs(root: Path) -> list[_Pair]:
+    if not root.is_dir():
+        raise ValueError(f"--data {str(root)!r} is not a folder")
+    for left_name, right_name in _LAYOUTS:
+        left_dir, right_dir = root / left_name, root / right_name
+        if left_dir.is_dir() and right_dir.is_dir():
+            lefts = {path.name: path for path in left_dir.iterdir()
+                     if path.is_file() and not path.name.startswith(".")}
+            rights = {path.name: path for path in right_dir.iterdir() if path.is_file()}
+            if not lefts:
+                raise ValueError(f"--data: {left_dir} holds no files")
+            return [_Pair(Path(name).stem, lefts[name], rights.get(name)) for name in sorted(lefts)]
+    layouts = ", ".join(f"{left}/ + {right}/" for left, right in _LAYOUTS)
+    raise ValueError(f"--data {str(root)!r}: no pair of folders ({layouts})")
+
+
+def _listed_pairs(listing: Path) -> list[_Pair]:
+    if not listing.is_file():
+        raise ValueError(f"--pairs {str(listing)!r} does not exist or is not a file")
+    pairs = []
+    for number, line in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        if len(fields) != 2:
+            raise ValueError(
+                f"--pairs {listing.name} line {number}: expected 'LEFT RIGHT', got {line.strip()!r}"
+            )
+        left = Path(fields[0]) if Path(fields[0]).is_absolute() else listing.parent / fields[0]
+        right = Path(fields[1]) if Path(fields[1]).is_absolute() else listing.parent / fields[1]
+        pairs.append(_Pair(left.stem, left, right))
+    names = [pair.name for pair in pairs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"--pairs {listing.name}: two left images share a file stem; outputs would collide")
+    return pairs
+
+
+def _shard(text: str) -> tuple[int, int]:
+    try:
+        index, count = (int(part) for part in text.split("/"))
+    except ValueError:
+        raise ValueError(f"--shard must be I/N with integers, got {text!r}") from None
+    if not 0 <= index < count:
+        raise ValueError(f"--shard I/N needs 0 <= I < N, got {text!r}")
+    return index, count
+
+
+def _targets(args: argparse.Namespace, batch: bool) -> _Targets:
+    disparity = args.output
+    if args.out_dir is not None:
+        if disparity is not None:
+            raise ValueError("give -o or --out-dir, not both")
+        disparity = str(args.out_dir / ("{name}" + _EXTENSION[args.format or "png16"]))
+    if disparity is None:
+        raise ValueError("the disparity output is missing: -o OUT (or --out-dir DIR)")
+    output_format = args.format or format_for_path(disparity)
+    if args.validity is not None and Path(args.validity).suffix.lower() not in (".png", ".npy"):
+        raise ValueError(f"--validity must name a .png or .npy file, got {args.validity!r}")
+    if args.depth is not None:
+        from service.geometry import depth_format_for_path
+
+        depth_format_for_path(args.depth)
+    if args.pointcloud is not None and Path(args.pointcloud).suffix.lower() != ".ply":
+        raise ValueError(f"--pointcloud must name a .ply file, got {args.pointcloud!r}")
+    templates = {"-o": disparity, "--validity": args.validity, "--depth": args.depth,
+                 "--pointcloud": args.pointcloud}
+    for flag, template in templates.items():
+        if template is not None and batch and "{name}" not in template:
+            raise ValueError(f"{flag} {template!r} must hold {{name}} when several pairs are written")
+    return _Targets(disparity, output_format, args.validity, args.depth, args.pointcloud)
+
+
+def _check_sizes(pair: _Pair) -> tuple[int, int]:
+    left_size = _size(pair.left, "left")
+    right_size = _size(pair.right, "right")
+    if left_size != right_size:
+        raise ValueError(
+            f"left and right images differ in size: {left_size[1]}x{left_size[0]} vs "
+            f"{right_size[1]}x{right_size[0]} (a rectified pair has equal sizes)"
+        )
+    return left_size
 
 
 def _size(path: Path, side: str) -> tuple[int, int]:
@@ -116,9 +399,61 @@ def _size(path: Path, side: str) -> tuple[int, int]:
 
 
 def _read(path: Path, side: str) -> np.ndarray:
+    """uint8 HxWx3; 16-bit grey scaled by its real bit depth (sBIT chunk, else the largest sample)."""
     if not path.is_file():
         raise ValueError(f"{side} image {str(path)!r} does not exist or is not a file")
-    return read_image(path, name=f"{side} image {str(path)!r}")
+    name = f"{side} image {str(path)!r}"
+    depth = _png_sample_depth(path)
+    if depth is not None and depth[0] == 16:
+        return _read_sixteen_bit(path, name, depth[1], _png_significant_bits(path))
+    return read_image(path, name=name)
+
+
+def _read_sixteen_bit(path: Path, name: str, colour_type: int, significant: int | None) -> np.ndarray:
+    if colour_type != 0:  # Pillow keeps only the high byte of 16-bit colour PNGs
+        raise ValueError(f"{name}: 16-bit colour PNG would lose precision (only its high byte is read); "
+                         "convert it to 8-bit colour or 16-bit grey")
+    image = read_image(path, name=name)  # every check and EXIF rotation of the normal path
+    del image
+    with Image.open(path, formats=ALLOWED_FORMATS) as opened:
+        samples = np.asarray(opened).astype(np.uint32)
+    top = int(samples.max())
+    bits = significant if significant is not None else max(8, top.bit_length())
+    full_scale = (1 << bits) - 1
+    grey = np.clip(np.rint(samples * (255.0 / full_scale)), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2))
+
+
+def _png_sample_depth(path: Path) -> tuple[int, int] | None:
+    """(bit depth, colour type) from a PNG's IHDR, or None for any other file."""
+    with open(path, "rb") as stream:
+        head = stream.read(33)
+    if len(head) < 33 or not head.startswith(b"\x89PNG\r\n\x1a\n") or head[12:16] != b"IHDR":
+        return None
+    return head[24], head[25]
+
+
+def _png_significant_bits(path: Path) -> int | None:
+    """The grey sample's significant bits from a PNG's sBIT chunk (before IDAT), or None."""
+    with open(path, "rb") as stream:
+        stream.read(8)
+        for _ in range(64):
+            header = stream.read(8)
+            if len(header) < 8:
+                return None
+            length, kind = int.from_bytes(header[:4], "big"), header[4:]
+            if kind in (b"IDAT", b"IEND"):
+                return None
+            body = stream.read(length)
+            crc = stream.read(4)
+            if kind == b"sBIT" and len(body) >= 1 and zlib.crc32(kind + body) == int.from_bytes(crc, "big"):
+                return body[0] if 1 <= body[0] <= 16 else None
+    return None
+
+
+def _write(path: Path, writer) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer(path)
 
 
 def _write_validity(path: Path, validity: np.ndarray) -> None:
