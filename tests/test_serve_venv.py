@@ -118,7 +118,9 @@ def test_image_command_serves_from_the_venv(serve_venv: Path, tmp_path: Path) ->
                 pass
             assert time.monotonic() < deadline, "not ready within 300 s"
             time.sleep(0.25)
-        assert (tmp_path / "cache" / ".seeded").exists()  # the entry point copied the seeded cache
+        # The entry point copied the seeded cache into a fresh private folder.
+        cache = tmp_path / "cache"
+        assert list(cache.rglob("*.nbi")) and cache.stat().st_mode & 0o777 == 0o700
         files = {side: (f"{side}.png", (SAMPLE / f"sample-{side}.png").read_bytes())
                  for side in ("left", "right")}
         response = httpx.post(f"{base}/disparity", params={"max_disparity": 32}, files=files, timeout=120)
