@@ -53,6 +53,7 @@ class MatchOptions:
     p1: float | None = None  # None -> manifest sgm.p1 (whole cost units, see cost.scale; <= MAX_PENALTY)
     p2: float | None = None  # None -> manifest sgm.p2
     sgm: bool = True
+    adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
     subpixel: bool = True
     lr_check: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
@@ -71,7 +72,7 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        for name in ("sgm", "subpixel", "lr_check", "fill", "border"):
+        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -232,7 +233,8 @@ class Matcher:
         del left_features, right_features
         lap("cost_volume")
         if options.sgm:
-            volume = aggregate(volume, p1=p1, p2=p2, out=aggregated)
+            guide = left.mean(axis=2, dtype=np.float32) if options.adaptive_p2 else None
+            volume = aggregate(volume, p1=p1, p2=p2, out=aggregated, guide=guide)
         lap("sgm")
         if options.lr_check:
             winners, right_winners = left_right_winners(volume)

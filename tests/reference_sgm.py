@@ -8,8 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 
-def _path(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
-    """Eq. (20) along axis 1 of a (lines, length, D) volume, from index 0 upwards."""
+def _path(cost: np.ndarray, p1: float, p2: float, guide: np.ndarray | None = None, edge: float = 0.0
+          ) -> np.ndarray:
+    """Eq. (20) along axis 1 of a (lines, length, D) volume, from index 0 upwards; with a (lines, length)
+    ``guide`` and ``edge`` > 0 the jump penalty is max(P1, round(P2 / (1 + |dI| / edge)))."""
     lines, length, disparities = cost.shape
     result = np.empty(cost.shape, np.float64)
     for line in range(lines):
@@ -17,8 +19,12 @@ def _path(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
         for i in range(1, length):
             previous = result[line, i - 1]
             previous_min = previous.min()
+            jump = p2
+            if guide is not None and edge > 0:
+                step = abs(float(guide[line, i]) - float(guide[line, i - 1]))
+                jump = max(p1, float(np.rint(np.float32(p2 / (1.0 + step / edge)))))
             for d in range(disparities):
-                candidates = [previous[d], previous_min + p2]
+                candidates = [previous[d], previous_min + jump]
                 if d > 0:
                     candidates.append(previous[d - 1] + p1)
                 if d < disparities - 1:
@@ -27,12 +33,16 @@ def _path(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
     return result
 
 
-def reference_sgm(cost: np.ndarray, p1: float, p2: float) -> np.ndarray:
+def reference_sgm(cost: np.ndarray, p1: float, p2: float, guide: np.ndarray | None = None,
+                  edge: float = 0.0) -> np.ndarray:
     """Sum over the 4 paths left->right, right->left, top->bottom, bottom->top of an (H, W, D) volume."""
     cost = np.asarray(cost, np.float64)
-    left_to_right = _path(cost, p1, p2)
-    right_to_left = _path(cost[:, ::-1], p1, p2)[:, ::-1]
+    rows = guide if guide is not None else None
+    columns_guide = guide.T if guide is not None else None
+    left_to_right = _path(cost, p1, p2, rows, edge)
+    right_to_left = _path(cost[:, ::-1], p1, p2, None if rows is None else rows[:, ::-1], edge)[:, ::-1]
     columns = cost.transpose(1, 0, 2)
-    top_to_bottom = _path(columns, p1, p2).transpose(1, 0, 2)
-    bottom_to_top = _path(columns[:, ::-1], p1, p2)[:, ::-1].transpose(1, 0, 2)
+    top_to_bottom = _path(columns, p1, p2, columns_guide, edge).transpose(1, 0, 2)
+    bottom_to_top = _path(columns[:, ::-1], p1, p2, None if columns_guide is None else columns_guide[:, ::-1],
+                          edge)[:, ::-1].transpose(1, 0, 2)
     return left_to_right + right_to_left + top_to_bottom + bottom_to_top

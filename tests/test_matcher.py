@@ -79,6 +79,8 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     assert "fill" in filled.timings and "border" not in filled.timings
 
     banded = matcher(left, right, MatchOptions(**options))      # the default adds the border band step
+    constant = matcher(left, right, MatchOptions(**options, adaptive_p2=False))
+    assert constant.timings.keys() == banded.timings.keys()
     changed = banded.disparity != filled.disparity
     assert "border" in banded.timings and changed.any()
     assert np.all(banded.validity[changed] == Validity.FILLED_OCCLUSION)

@@ -97,3 +97,25 @@ def test_rejects_bad_shapes() -> None:
         aggregate(np.zeros((3, 4, 2), np.float32), p1=1, p2=2)
     with pytest.raises(ValueError, match="out"):
         aggregate(np.zeros((3, 4, 2), np.int16), p1=1, p2=2, out=np.zeros((3, 4, 3), np.int16))
+
+
+@pytest.mark.parametrize("shape", [(7, 9, 5), (13, 40, 16), (1, 12, 6), (10, 1, 6), (6, 75, 4)],
+                         ids=lambda shape: "x".join(map(str, shape)))
+@pytest.mark.parametrize("edge", [8.0, 0.5])
+def test_image_adaptive_p2_matches_reference(shape: tuple[int, int, int], edge: float) -> None:
+    cost = _random_cost(shape, seed=sum(shape) + 1)
+    guide = np.random.default_rng(sum(shape)).uniform(0, 255, shape[:2]).astype(np.float32)
+    expected = reference_sgm(cost, 30.0, 300.0, guide, edge)
+    np.testing.assert_array_equal(aggregate(cost, p1=30, p2=300, guide=guide, edge=edge), expected)
+
+
+def test_a_flat_guide_is_the_constant_penalty_and_an_edge_lowers_it() -> None:
+    cost = _random_cost((6, 8, 5), seed=4)
+    flat = np.full(cost.shape[:2], 100.0, np.float32)
+    constant = aggregate(cost, p1=30, p2=300)
+    np.testing.assert_array_equal(aggregate(cost, p1=30, p2=300, guide=flat), constant)
+    edged = flat.copy()
+    edged[:, 4:] = 200.0
+    assert not np.array_equal(aggregate(cost, p1=30, p2=300, guide=edged), constant)
+    with pytest.raises(ValueError, match="guide"):
+        aggregate(cost, p1=30, p2=300, guide=flat[:, :3])

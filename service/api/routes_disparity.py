@@ -92,6 +92,8 @@ def stereo_options(
     fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
                                        "default: lr_check).")] = None,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
+    adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
+                                       "edges follow image edges.")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
                                   "the right image) the disparity of the surface they continue.")] = True,
     p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
@@ -105,7 +107,7 @@ def stereo_options(
     try:
         return MatchOptions(
             max_disparity=max_disparity, lr_check=lr_check, fill=lr_check if fill is None else fill,
-            subpixel=subpixel, border=border, p1=p1, p2=p2,
+            subpixel=subpixel, border=border, adaptive_p2=adaptive_p2, p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500
         raise HTTPException(400, str(error)) from None

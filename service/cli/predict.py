@@ -75,6 +75,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--no-lr-check", action="store_true", help="skip the inner left-right check")
     add("--no-fill", action="store_true", help="leave invalid pixels unfilled (NaN)")
     add("--no-subpixel", action="store_true", help="integer disparities (no quadratic fit)")
+    add("--no-adaptive-p2", action="store_true",
+        help="constant SGM jump penalty (not lowered at image edges)")
     add("--no-border", action="store_true",
         help="leave the left border band (match left of the right image) as matched")
     add("--validity", metavar="PATH", help="also write the validity map (.png or .npy)")
@@ -159,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
         lr_check=not args.no_lr_check,
         fill=not args.no_fill,
         border=not args.no_border,
+        adaptive_p2=not args.no_adaptive_p2,
     )
     runner = _Runner(args, matcher, options, targets, calibration, loaded=time.perf_counter() - started)
     if not batch:
