@@ -43,7 +43,7 @@ def model(tmp_path: Path) -> Path:
 
 def test_write_records_the_figures_of_adsm_eval_with_command_and_date(model, tiny_cones, tmp_path, capsys):
     before = load_manifest(model)
-    argv = ["--model", str(model), "--cones", str(tiny_cones), "--write"]
+    argv = ["--model", str(model), "--cones", str(tiny_cones), "--synthetic", "0", "--write"]
     assert main(argv) == 0, capsys.readouterr().err
     manifest = load_manifest(model)
     jsonschema.validate(manifest, json.loads(SCHEMA_PATH.read_text()))
@@ -52,7 +52,7 @@ def test_write_records_the_figures_of_adsm_eval_with_command_and_date(model, tin
     assert {k: v for k, v in manifest.items() if k != "metrics"} == {k: v for k, v in before.items()
                                                                      if k != "metrics"}
     entry = manifest["metrics"]["middlebury2003-cones"]
-    assert set(manifest["metrics"]) == {"middlebury2003-cones"}  # no synthetic entry before, none now
+    assert set(manifest["metrics"]) == {"middlebury2003-cones"}  # --synthetic 0: the whole metrics replaced
     assert entry["command"] == "python -m export.measure " + " ".join(argv)
     assert entry["date"].endswith("+00:00") and entry["data"].startswith("cones:")
     assert entry["pairs"] == 1 and entry["max_disparity"] == 64 and entry["pixels"] == 48 * 96

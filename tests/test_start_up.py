@@ -37,7 +37,7 @@ def _edited_copy(tmp_path: Path, **changes: object) -> Path:
     return folder
 
 
-EDITS = [({"channels": 32}, "channels 32"), ({"receptive_field": 21}, "receptive_field 21"),
+EDITS = [({"channels": 48}, "channels 48"), ({"receptive_field": 21}, "receptive_field 21"),
          ({"receptive_field": 61}, "receptive_field 61")]
 
 
