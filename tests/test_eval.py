@@ -130,3 +130,13 @@ def test_adsm_eval_errors_are_one_line(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("adsm: error: dataset 'nonsense:x'")
     assert main(["eval", "--model", str(tmp_path), "--data", "synthetic:1"]) == 1
     assert "bad model folder" in capsys.readouterr().err
+
+
+def test_adsm_eval_switches_reach_the_matcher(tiny_cones, capsys):
+    def options(*flags: str) -> dict:
+        assert main(["eval", "--model", str(BASELINE), "--data", str(tiny_cones), "--json", "-", *flags]) == 0
+        return json.loads(capsys.readouterr().out)["options"]
+
+    assert options()["border"] is True and options()["adaptive_p2"] is True
+    off = options("--no-border", "--no-adaptive-p2")
+    assert off["border"] is False and off["adaptive_p2"] is False

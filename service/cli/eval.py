@@ -36,6 +36,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="disparity range D (default: the dataset's recommendation, else the model's)")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
+    add("--no-border", action="store_true", help="switch the left border band step off")
+    add("--no-adaptive-p2", action="store_true",
+        help="constant SGM jump penalty (not lowered at image edges)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
     add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
     parser.set_defaults(func=run)
@@ -52,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = MatchOptions(max_disparity=args.max_disparity, p1=args.p1, p2=args.p2)
+    options = MatchOptions(max_disparity=args.max_disparity, p1=args.p1, p2=args.p2,
+                           border=not args.no_border, adaptive_p2=not args.no_adaptive_p2)
     matcher.warmup()
 
     def progress(index: int, pair: dict[str, Any]) -> None:
