@@ -37,12 +37,14 @@ def reference_sgm(cost: np.ndarray, p1: float, p2: float, guide: np.ndarray | No
                   edge: float = 0.0) -> np.ndarray:
     """Sum over the 4 paths left->right, right->left, top->bottom, bottom->top of an (H, W, D) volume."""
     cost = np.asarray(cost, np.float64)
-    rows = guide if guide is not None else None
-    columns_guide = guide.T if guide is not None else None
-    left_to_right = _path(cost, p1, p2, rows, edge)
-    right_to_left = _path(cost[:, ::-1], p1, p2, None if rows is None else rows[:, ::-1], edge)[:, ::-1]
-    columns = cost.transpose(1, 0, 2)
+
+    def reversed_(lines: np.ndarray | None) -> np.ndarray | None:
+        return None if lines is None else lines[:, ::-1]
+
+    columns, columns_guide = cost.transpose(1, 0, 2), None if guide is None else guide.T
+    left_to_right = _path(cost, p1, p2, guide, edge)
+    right_to_left = _path(cost[:, ::-1], p1, p2, reversed_(guide), edge)[:, ::-1]
     top_to_bottom = _path(columns, p1, p2, columns_guide, edge).transpose(1, 0, 2)
-    bottom_to_top = _path(columns[:, ::-1], p1, p2, None if columns_guide is None else columns_guide[:, ::-1],
-                          edge)[:, ::-1].transpose(1, 0, 2)
+    bottom_to_top = _path(columns[:, ::-1], p1, p2, reversed_(columns_guide), edge)[:, ::-1]
+    bottom_to_top = bottom_to_top.transpose(1, 0, 2)
     return left_to_right + right_to_left + top_to_bottom + bottom_to_top

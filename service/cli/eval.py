@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from service.cli.match_flags import add_match_flags, match_options
 from service.datasets import open_dataset
 from service.evaluation import BAD_THRESHOLDS
 from service.evaluation.breakdown import format_breakdown
@@ -34,11 +35,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH")
     add("--max-disparity", type=int, metavar="D",
         help="disparity range D (default: the dataset's recommendation, else the model's)")
-    add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
-    add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
-    add("--no-border", action="store_true", help="switch the left border band step off")
-    add("--no-adaptive-p2", action="store_true",
-        help="constant SGM jump penalty (not lowered at image edges)")
+    add_match_flags(add, steps=("adaptive_p2", "border"))
     add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
     add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
     parser.set_defaults(func=run)
@@ -48,15 +45,14 @@ def run(args: argparse.Namespace) -> int:
     dataset = open_dataset(args.data)
     # Imported here so that `adsm --help` does not pay for Numba and ONNX Runtime.
     from service.evaluation.evaluate import evaluate
-    from service.matcher import Matcher, MatchOptions
+    from service.matcher import Matcher
 
     try:
         matcher = Matcher.from_folder(args.model, threads=args.threads)
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = MatchOptions(max_disparity=args.max_disparity, p1=args.p1, p2=args.p2,
-                           border=not args.no_border, adaptive_p2=not args.no_adaptive_p2)
+    options = match_options(args)
     matcher.warmup()
 
     def progress(index: int, pair: dict[str, Any]) -> None:

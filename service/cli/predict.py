@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from service.cli.match_flags import add_match_flags, match_options
 from service.features import ModelError
 from service.io import ALLOWED_FORMATS, FORMATS, format_for_path, image_size, read_image, write_disparity
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
@@ -70,15 +71,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "color (RGB PNG for people); default: from OUT's extension")
     add("--max-disparity", type=int, metavar="D", help="disparity range D (default: the model's)")
     add("--model", type=Path, metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the shipped)")
-    add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
-    add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
-    add("--no-lr-check", action="store_true", help="skip the inner left-right check")
-    add("--no-fill", action="store_true", help="leave invalid pixels unfilled (NaN)")
-    add("--no-subpixel", action="store_true", help="integer disparities (no quadratic fit)")
-    add("--no-adaptive-p2", action="store_true",
-        help="constant SGM jump penalty (not lowered at image edges)")
-    add("--no-border", action="store_true",
-        help="leave the left border band (match left of the right image) as matched")
+    add_match_flags(add)
     add("--validity", metavar="PATH", help="also write the validity map (.png or .npy)")
     metric = parser.add_argument_group("calibration and metric outputs")
     metric.add_argument("--calib", type=Path, metavar="FILE",
@@ -144,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
                                        rectified=args.rectified)
 
     # Imported here so that `adsm --help` does not pay for Numba.
-    from service.matcher import Matcher, MatchOptions
+    from service.matcher import Matcher
 
     try:
         matcher = Matcher.from_folder(
@@ -153,16 +146,7 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = MatchOptions(
-        max_disparity=args.max_disparity,
-        p1=args.p1,
-        p2=args.p2,
-        subpixel=not args.no_subpixel,
-        lr_check=not args.no_lr_check,
-        fill=not args.no_fill,
-        border=not args.no_border,
-        adaptive_p2=not args.no_adaptive_p2,
-    )
+    options = match_options(args)
     runner = _Runner(args, matcher, options, targets, calibration, loaded=time.perf_counter() - started)
     if not batch:
         runner.one(pairs[0])

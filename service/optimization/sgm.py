@@ -167,12 +167,12 @@ def aggregate(cost: np.ndarray, *, p1: float, p2: float, out: np.ndarray | None 
         out = np.empty(cost.shape, COST_DTYPE)
     elif out.shape != cost.shape or out.dtype != COST_DTYPE or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous int16 array of shape {cost.shape}")
+    if not np.isfinite(edge):
+        raise ValueError(f"edge must be finite, got {edge}")
     if guide is None or edge <= 0:
         guide, edge = np.zeros((1, 1), np.float32), 0.0     # never read: the kernels keep P2 constant
     elif guide.shape != cost.shape[:2]:
         raise ValueError(f"guide {guide.shape} must be the cost volume's H x W {cost.shape[:2]}")
-    if not np.isfinite(edge):
-        raise ValueError(f"edge must be finite, got {edge}")
     cost = np.ascontiguousarray(cost)
     guide = np.ascontiguousarray(guide, dtype=np.float32)
     p1, p2, edge = np.float32(np.rint(p1)), np.float32(np.rint(p2)), np.float32(edge)

@@ -181,10 +181,12 @@ def _out_of_time(config: TrainConfig, started: float, world: int) -> bool:
     """Whether the run's time budget is spent; under DDP rank 0's clock decides for every process."""
     if config.time_budget_s is None:
         return False
-    spent = torch.tensor([time.perf_counter() - started > config.time_budget_s], dtype=torch.int32)
+    spent = time.perf_counter() - started > config.time_budget_s
     if world > 1:
-        dist.broadcast(spent, src=0)
-    return bool(spent.item())
+        decision = torch.tensor([spent], dtype=torch.int32)
+        dist.broadcast(decision, src=0)
+        spent = bool(decision.item())
+    return spent
 
 
 def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: dict[str, Any],
