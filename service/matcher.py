@@ -31,6 +31,7 @@ from service.features import FeatureTowers, default_model_dir
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
+from service.limits import SearchRange, search_range
 from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, aggregate
 from service.refinement import refine_subpixel
@@ -49,7 +50,7 @@ class MemoryLimitError(ValueError):
 class MatchOptions:
     """Per-call settings; ``None`` takes the model manifest's value. Raises ValueError when out of range."""
 
-    max_disparity: int | None = None  # None -> manifest disparity.default_max; clipped to the image width
+    max_disparity: int | None = None  # range size D; None -> manifest disparity.default_max, clipped to fit
     p1: float | None = None  # None -> manifest sgm.p1 (whole cost units, see cost.scale; <= MAX_PENALTY)
     p2: float | None = None  # None -> manifest sgm.p2
     sgm: bool = True
@@ -59,7 +60,14 @@ class MatchOptions:
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
 
+    # --- Issue 12 (range offset): kept apart from the pipeline switches above. ---
+    # The search range is [min_disparity, min_disparity + max_disparity), as OpenCV's minDisparity and
+    # numDisparities; negative values search matches right of the left pixel (service/limits.py).
+    min_disparity: int = 0
+
     def __post_init__(self) -> None:
+        if isinstance(self.min_disparity, bool) or not isinstance(self.min_disparity, int | np.integer):
+            raise ValueError(f"min_disparity must be an integer, got {self.min_disparity!r}")
         if self.max_disparity is not None:
             if isinstance(self.max_disparity, bool) or not isinstance(self.max_disparity, int | np.integer):
                 raise ValueError(f"max_disparity must be an integer, got {self.max_disparity!r}")
@@ -181,14 +189,16 @@ class Matcher:
             del part
         return features
 
-    def disparities(self, width: int, options: MatchOptions) -> int:
-        """The range a call searches: the option's, else the model's default, clipped to the width."""
-        return min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+    def search_range(self, width: int, options: MatchOptions) -> SearchRange:
+        """The range a call searches (service/limits.py): the option's, else the model's default size
+        clipped to the width; DisparityRangeError (a ValueError) when the range cannot fit the image."""
+        return search_range(width, min_disparity=options.min_disparity, max_disparity=options.max_disparity,
+                            default_max=int(self.manifest["disparity"]["default_max"]))
 
     def plan(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
         """Peak memory of a call on an ``height x width`` pair (service/memory.py), before any allocation."""
         options = MatchOptions() if options is None else options
-        return plan_request(height, width, self.disparities(width, options), self.manifest)
+        return plan_request(height, width, self.search_range(width, options).count, self.manifest)
 
     def check_memory(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
         """The plan of a call; raise :class:`MemoryLimitError` when it is over ``max_request_bytes``."""
@@ -211,6 +221,7 @@ class Matcher:
         _check_images(left, right)
         width = left.shape[1]
         disparities = self.check_memory(left.shape[0], width, options).disparities
+        offset = options.min_disparity
         p1 = float(self.manifest["sgm"]["p1"] if options.p1 is None else options.p1)
         p2 = float(self.manifest["sgm"]["p2"] if options.p2 is None else options.p2)
         jit.set_threads(self.threads)
@@ -229,7 +240,8 @@ class Matcher:
         scale = float(self.manifest["cost"]["scale"])
         shape = (left.shape[0], width, disparities)
         raw, aggregated = (None, None) if self.workspace is None else self.workspace.volumes(shape)
-        volume = cost_volume(left_features, right_features, disparities, scale=scale, out=raw)
+        volume = cost_volume(left_features, right_features, disparities, scale=scale, min_disparity=offset,
+                             out=raw)
         del left_features, right_features
         lap("cost_volume")
         if options.sgm:
@@ -237,7 +249,7 @@ class Matcher:
             volume = aggregate(volume, p1=p1, p2=p2, out=aggregated, guide=guide)
         lap("sgm")
         if options.lr_check:
-            winners, right_winners = left_right_winners(volume)
+            winners, right_winners = left_right_winners(volume, min_disparity=offset)
         else:
             winners = winner_takes_all(volume)
         lap("disparity")
@@ -247,8 +259,12 @@ class Matcher:
         else:
             disparity = winners.astype(np.float32)
         del volume, raw, aggregated
+        if offset:  # cell indices -> disparities
+            disparity += np.float32(offset)
+            if options.lr_check:
+                right_winners += np.int32(offset)
         if options.lr_check:
-            validity = inner_check(disparity, right_winners, disparities)
+            validity = inner_check(disparity, right_winners, disparities, min_disparity=offset)
             lap("lr_check")
             if options.fill:
                 disparity, validity = fill_invalid(disparity, validity)

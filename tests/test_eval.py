@@ -82,7 +82,8 @@ def test_evaluate_reports_dataset_figures_and_the_search_range_used():
     assert report["nonoccluded"]["pixels"] == 23 and report["nonoccluded_pairs"] == 1
     assert report["per_pair"][1]["nonoccluded"] is None
     assert report["stage_seconds"] == {"towers": 0.5, "sgm": 0.25}
-    assert [c.max_disparity for c in matcher.calls] == [64, 32]   # dataset's hint, else the options'
+    # The dataset's hint fitted to the 6-px width (an explicit range beyond it is refused), else the options'.
+    assert [c.max_disparity for c in matcher.calls] == [6, 32]
     evaluate(matcher, samples, max_disparity=48)
     assert [c.max_disparity for c in matcher.calls[2:]] == [48, 48]  # the caller's range wins
     json.dumps(report)

@@ -21,7 +21,11 @@ STEP_SWITCHES = {
 
 
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
-    """``--p1``, ``--p2`` and a ``--no-<step>`` flag for each of ``steps`` (keys of STEP_SWITCHES)."""
+    """``--min-disparity``, ``--p1``, ``--p2`` and a ``--no-<step>`` flag for each of ``steps`` (keys of
+    STEP_SWITCHES)."""
+    add("--min-disparity", type=int, default=0, metavar="M",
+        help="smallest disparity searched: the range is [M, M + D) with D from --max-disparity "
+        "(as OpenCV's minDisparity; default 0, negative allowed)")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
     for step in steps:
@@ -33,4 +37,5 @@ def match_options(args: argparse.Namespace) -> Any:
     from service.matcher import MatchOptions  # lazily: `adsm --help` need not load Numba
 
     switches = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
-    return MatchOptions(max_disparity=args.max_disparity, p1=args.p1, p2=args.p2, **switches)
+    return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity, p1=args.p1,
+                        p2=args.p2, **switches)

@@ -35,22 +35,26 @@ def _winners(volume, left):
             left[y, x] = _argmin(volume[y, x])
 
 
+_UNSEEN = np.int32(2**30)  # above any int16 cost: the first cell that reaches a right pixel wins
+
+
 @njit(parallel=True)
-def _left_right_winners(volume, left, right):
+def _left_right_winners(volume, min_disparity, left, right):
     height, width, disparities = volume.shape
     for y in prange(height):
-        right_best = np.empty(width, volume.dtype)
+        right_best = np.full(width, _UNSEEN, np.int32)
+        for x in range(width):
+            right[y, x] = 0  # kept by a right pixel no cell reaches (its match lies outside the left view)
         for x in range(width):
             costs = volume[y, x]
             left[y, x] = _argmin(costs)
-            # Right pixel x is first seen here (d = 0); later x reach it with growing d, so a strict <
-            # keeps the smallest d on ties.
-            right_best[x] = costs[0]
-            right[y, x] = 0
-            for d in range(1, min(disparities, x + 1)):
-                if costs[d] < right_best[x - d]:
-                    right_best[x - d] = costs[d]
-                    right[y, x - d] = d
+            # Cell k of left pixel x is cell k of right pixel x - min_disparity - k. Later x reach a right
+            # pixel with growing k, so a strict < keeps the smallest k on ties.
+            match = x - min_disparity
+            for d in range(max(0, match - width + 1), min(disparities, match + 1)):
+                if costs[d] < right_best[match - d]:
+                    right_best[match - d] = costs[d]
+                    right[y, match - d] = d
 
 
 def _check(volume: np.ndarray) -> np.ndarray:
@@ -69,13 +73,15 @@ def winner_takes_all(volume: np.ndarray) -> np.ndarray:
     return left
 
 
-def left_right_winners(volume: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """int32 HxW winners of the left view and of the right view, both from the left ``(H, W, D)`` volume.
+def left_right_winners(volume: np.ndarray, *, min_disparity: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """int32 HxW winners (cell indices) of the left view and of the right view, both from the left
+    ``(H, W, D)`` volume whose cell ``k`` is disparity ``min_disparity + k``.
 
-    ``right[y, x] = argmin_d volume[y, x + d, d]`` over the disparities with ``x + d < W``.
+    ``right[y, x] = argmin_k volume[y, x + min_disparity + k, k]`` over the cells whose left pixel lies in
+    the image; 0 where there is none.
     """
     volume = _check(volume)
     left = np.empty(volume.shape[:2], np.int32)
     right = np.empty(volume.shape[:2], np.int32)
-    _left_right_winners(volume, left, right)
+    _left_right_winners(volume, int(min_disparity), left, right)
     return left, right

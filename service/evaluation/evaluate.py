@@ -1,7 +1,8 @@
 """Run a Matcher over a dataset and report the benchmark figures (the body of ``adsm eval``).
 
 Search range per pair: the caller's ``max_disparity``, else the dataset's recommendation (KITTI 192,
-Middlebury's ndisp, Cones 64, synthetic 128), else the model's default. Seconds per pair are the
+Middlebury's ndisp, Cones 64, synthetic 128) fitted to the image width, else the model's default; it
+starts at ``options.min_disparity``. Seconds per pair are the
 Matcher's wall time (reading files excluded); call ``matcher.warmup()`` first so that JIT compilation
 is not counted.
 """
@@ -41,7 +42,11 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
     pairs = []
     for index in range(len(dataset)):
         sample = dataset[index]
-        search = max_disparity or sample.max_disparity or options.max_disparity
+        search = max_disparity
+        if search is None and sample.max_disparity is not None:
+            # The dataset's recommendation is not the caller's choice: fitted to the image, as a default.
+            search = min(sample.max_disparity, sample.left.shape[1] - options.min_disparity)
+        search = search or options.max_disparity
         started = time.perf_counter()
         result = matcher(sample.left, sample.right, dataclasses.replace(options, max_disparity=search))
         seconds.append(time.perf_counter() - started)

@@ -36,16 +36,17 @@ _DIRECTIONS = np.array(
 
 @njit(inline="always")
 def _horizontal_ray(disparity, validity, y, x, step):
-    """Disparity of the first VALID pixel from (y, x) along the row in direction ``step``; -1 if none.
+    """(found, disparity) of the first VALID pixel from (y, x) along the row in direction ``step``.
 
-    A negative sentinel, not NaN: the kernels are compiled with fastmath, under which isnan is folded away.
+    A flag, not a NaN or negative sentinel: the kernels are compiled with fastmath, under which isnan is
+    folded away, and a search range with a negative minimum has negative disparities.
     """
     xx = x + step
     while 0 <= xx < disparity.shape[1]:
         if validity[y, xx] == VALID:
-            return disparity[y, xx]
+            return True, disparity[y, xx]
         xx += step
-    return np.float32(-1.0)
+    return False, np.float32(0.0)
 
 
 @njit(parallel=True)
@@ -57,10 +58,11 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):
         for x in range(width):
             cause = validity[y, x]
             if cause == OCCLUDED:
-                value = _horizontal_ray(disparity, validity, y, x, -1)
-                if value < 0:
-                    value = _horizontal_ray(disparity, validity, y, x, 1)
-                if value < 0:
+                found_left, value = _horizontal_ray(disparity, validity, y, x, -1)
+                found_right = False
+                if not found_left:
+                    found_right, value = _horizontal_ray(disparity, validity, y, x, 1)
+                if not (found_left or found_right):
                     filled[y, x] = np.nan
                     filled_validity[y, x] = NO_DATA
                 else:

@@ -19,28 +19,32 @@ from service.validation.codes import MISMATCH, OCCLUDED, VALID
 
 
 @njit(parallel=True)
-def _check_rows(left, right, disparities, validity):
+def _check_rows(left, right, min_disparity, disparities, validity):
     height, width = left.shape
     for y in prange(height):
         for x in range(width):
             left_disparity = left[y, x]
-            matched = x - int(left_disparity + 0.5)
+            # floor(d + 0.5) (round half up) also for negative disparities.
+            matched = x - int(np.floor(left_disparity + np.float32(0.5)))
             if 0 <= matched < width and abs(left_disparity - right[y, matched]) <= 1.0:
                 validity[y, x] = VALID
                 continue
             cause = OCCLUDED
-            for d in range(min(disparities, x + 1)):
-                if abs(d - right[y, x - d]) <= 1:
+            match = x - min_disparity
+            for k in range(max(0, match - width + 1), min(disparities, match + 1)):
+                if abs(min_disparity + k - right[y, match - k]) <= 1:
                     cause = MISMATCH
                     break
             validity[y, x] = cause
 
 
-def inner_check(left: np.ndarray, right: np.ndarray, max_disparity: int) -> np.ndarray:
+def inner_check(left: np.ndarray, right: np.ndarray, max_disparity: int, *, min_disparity: int = 0
+                ) -> np.ndarray:
     """Validity map (uint8 :class:`Validity` codes VALID / OCCLUDED / MISMATCH) of a left disparity map.
 
-    ``left``: float32 HxW left disparities (integer or sub-pixel, all >= 0); ``right``: int32 HxW
-    winners of the right view from the same volume; ``max_disparity``: D of that volume.
+    ``left``: float32 HxW left disparities (integer or sub-pixel, within the searched range); ``right``:
+    int32 HxW disparities of the right view's winners from the same volume; the volume searched
+    ``min_disparity .. min_disparity + max_disparity - 1``.
     """
     if left.ndim != 2 or left.shape != right.shape:
         raise ValueError(f"left/right disparities must be HxW of one shape, got {left.shape}, {right.shape}")
@@ -50,6 +54,7 @@ def inner_check(left: np.ndarray, right: np.ndarray, max_disparity: int) -> np.n
     _check_rows(
         np.ascontiguousarray(left, dtype=np.float32),
         np.ascontiguousarray(right, dtype=np.int32),
+        int(min_disparity),
         int(max_disparity),
         validity,
     )
