@@ -17,9 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from service.datasets.photometric import apply_camera
-from service.datasets.scene import render
-from service.datasets.synthetic import SyntheticConfig, generate, random_scene
+from training.data.synthetic import SyntheticConfig, apply_camera, generate, random_scene
+from training.data.synthetic.scene import render
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 import torch
 
-from service.datasets.synthetic import SyntheticConfig, generate
+from training.data.synthetic import SyntheticConfig, generate
 from training.networks import build_tower_pair
 from training.networks.pair import INITIAL_TEMPERATURE
 

@@ -118,7 +118,7 @@ def baseline_manifest(
             "p1": p1,
             "p2": p2,
             "paths": 4,
-            "tuned_on": "synthetic pairs of service.datasets.synthetic (python -m export.baseline --measure)",
+            "tuned_on": "synthetic pairs of training.data.synthetic (python -m export.baseline --measure)",
         },
         "disparity": {"default_max": DEFAULT_MAX_DISPARITY, "trained_range": [0, 0]},
         "onnx": {"opset": OPSET, "precision": "fp32", "exporter": "onnx helper API (export/baseline.py)"},
@@ -166,10 +166,10 @@ def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparit
     import tempfile
 
     from service.datasets import open_dataset
-    from service.datasets.synthetic import SyntheticConfig, generate
     from service.evaluation import count_errors
     from service.evaluation.tuning import TUNING_DATA, tune_penalties
     from service.matcher import Matcher, MatchOptions
+    from training.data.synthetic import SyntheticConfig, generate
 
     config = SyntheticConfig(height=height, width=width, max_disparity=max_disparity * 3 // 4)
     samples = [generate(TUNING_SEED + index, config) for index in range(pairs)]

@@ -41,6 +41,7 @@ from export.measure import datasets_of, measure_command, measure_folder
 from service.features.manifest import TOWER_FILES, load_manifest, write_manifest
 from service.features.towers import FeatureTowers
 from service.io import read_image
+from training.data.photos import data_folder
 
 DEFAULT_CALIBRATION = "skimage:astronaut,chelsea,rocket,brick,gravel"
 HELD_OUT = "skimage:coffee"          # accuracy image, never part of the default calibration
@@ -60,7 +61,10 @@ CALIBRATION_HELP = (
 def calibration_images(spec: str) -> list[tuple[str, np.ndarray]]:
     """(name, uint8 HxWx3) for a calibration SPEC (see ``CALIBRATION_HELP``)."""
     if spec == "skimage" or spec.startswith("skimage:"):
-        folder = _skimage_data()
+        try:
+            folder = data_folder()
+        except ModuleNotFoundError:
+            raise ValueError("calibration 'skimage' needs scikit-image (pip install -e '.[train]')") from None
         stems = [s for s in spec.partition(":")[2].split(",") if s] or DEFAULT_CALIBRATION[8:].split(",")
         paths = []
         for stem in stems:
@@ -84,7 +88,7 @@ def calibration_images(spec: str) -> list[tuple[str, np.ndarray]]:
 def calibration_pairs(spec: str) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(name, left view, right view) for a calibration SPEC, cropped to at most ``CROP``."""
     if spec == "synthetic" or spec.startswith("synthetic:"):
-        from service.datasets.synthetic import SyntheticConfig, generate
+        from training.data.synthetic import SyntheticConfig, generate
 
         count = spec.partition(":")[2]
         if count and (not count.isdigit() or int(count) < 1):
@@ -218,11 +222,3 @@ def measure_accuracy(fp32_folder: Path, int8_folder: Path, image: np.ndarray, na
     result["disparity_agreement_1px"] = round(float(agree.sum() / max(both.sum(), 1)), 5)
     result["disparity_both_defined"] = round(float(both.mean()), 5)
     return result
-
-
-def _skimage_data() -> Path:
-    """scikit-image's bundled data folder, found without importing scikit-image."""
-    spec = importlib.util.find_spec("skimage")
-    if spec is None or not spec.submodule_search_locations:
-        raise ValueError("calibration 'skimage' needs scikit-image (pip install '.[train]')")
-    return Path(next(iter(spec.submodule_search_locations))) / "data"

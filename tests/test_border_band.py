@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.datasets import SyntheticConfig, generate
 from service.evaluation.breakdown import Breakdown
 from service.filling import fill_border_band
 from service.matcher import Matcher, MatchOptions
 from service.validation.codes import Validity
+from training.data.synthetic import SyntheticConfig, generate
 
 
 def test_band_takes_the_disparity_of_the_surface_it_continues():

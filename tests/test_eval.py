@@ -10,12 +10,12 @@ import pytest
 from PIL import Image
 
 from service.cli import main
-from service.datasets import StereoSample, SyntheticConfig, generate
-from service.datasets.photometric import Photometric
+from service.datasets import StereoSample, extensions
 from service.evaluation import ErrorCounts, count_errors
 from service.evaluation.evaluate import evaluate
 from service.io import write_disparity
 from service.matcher import MatchOptions, StereoResult
+from training.data.synthetic import Photometric, SyntheticConfig, generate
 
 BASELINE = Path(__file__).resolve().parents[1] / "service" / "models" / "ncc-baseline"
 
@@ -131,6 +131,15 @@ def test_adsm_eval_errors_are_one_line(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("adsm: error: dataset 'nonsense:x'")
     assert main(["eval", "--model", str(tmp_path), "--data", "synthetic:1"]) == 1
     assert "bad model folder" in capsys.readouterr().err
+
+
+def test_adsm_eval_synthetic_without_the_train_extra_is_one_line(monkeypatch, capsys):
+    monkeypatch.setattr(extensions, "registered", lambda: {})  # as on a serve-only install
+    assert main(["eval", "--model", str(BASELINE), "--data", "synthetic:1"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("adsm: error: dataset 'synthetic:1' needs the train extra "
+                            "(pip install -e '.[train]')")
+    assert error.count("\n") == 1 and "Traceback" not in error
 
 
 def test_adsm_eval_switches_reach_the_matcher(tiny_cones, capsys):

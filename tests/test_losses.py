@@ -9,8 +9,8 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from service.datasets import SyntheticConfig, generate
-from training.data import patch_pairs, random_crop, random_patch_pairs, usable_pixels
+from training.data.samples import patch_pairs, random_crop, random_patch_pairs, usable_pixels
+from training.data.synthetic import SyntheticConfig, generate
 from training.losses import dense_candidates, dense_matching_loss, matching_loss, soft_label
 
 

@@ -13,11 +13,10 @@ from PIL import Image
 
 from export.measure import default_datasets, main, measure_command, measure_folder
 from service.cli import main as adsm
-from service.datasets import SyntheticConfig, generate
-from service.datasets.photometric import Photometric
 from service.features import ModelError, load_manifest
 from service.features.manifest import SCHEMA_PATH, verify_files
 from service.io import write_disparity
+from training.data.synthetic import Photometric, SyntheticConfig, generate
 
 SHIPPED = Path(__file__).resolve().parents[1] / "service" / "models" / "ncc-baseline"
 

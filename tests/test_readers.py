@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from service.datasets import open_dataset
+from service.datasets import extensions, open_dataset
 from service.datasets.readers import KITTI_MAX_DISPARITY, detect_kind
 from service.io import write_disparity
+from training.data import photos
+from training.data.synthetic import open_validation_split
 
 HEIGHT, WIDTH = 6, 10
 CONES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "middlebury2003-cones"
@@ -118,6 +122,32 @@ def test_synthetic_spec_is_the_validation_split():
     assert len(open_dataset("synthetic")) == 20
     dataset = open_dataset("synthetic:2")
     assert len(dataset) == 2 and dataset[1].name == "synthetic-1000000001"
+
+
+def test_synthetic_kind_is_the_train_extras_entry_point():
+    entry = extensions.registered()["synthetic"]
+    assert entry.value == "training.data.synthetic:open_validation_split"
+    assert entry.load() is open_validation_split
+
+
+@pytest.mark.parametrize("absence", ["no entry point", "no training package", "no scikit-image"])
+def test_synthetic_without_the_train_extra_names_the_extra_in_one_line(monkeypatch, absence):
+    if absence == "no entry point":  # installed without the entry point's metadata
+        monkeypatch.setattr(extensions, "registered", lambda: {})
+    elif absence == "no training package":  # the serve-only image: the metadata names a module it lacks
+        entry = importlib.metadata.EntryPoint(name="synthetic", value="adsm_no_such_module:open",
+                                              group=extensions.ENTRY_POINT_GROUP)
+        monkeypatch.setattr(extensions, "registered", lambda: {"synthetic": entry})
+    else:  # `pip install '.[serve]'` from a checkout: training is there, scikit-image's photos are not
+        no_skimage = SimpleNamespace(util=SimpleNamespace(find_spec=lambda _: None))
+        monkeypatch.setattr(photos, "importlib", no_skimage)
+    with pytest.raises(ValueError) as raised:
+        open_dataset("synthetic:2")
+    message = str(raised.value)
+    assert message.startswith("dataset 'synthetic:2' needs the train extra (pip install -e '.[train]'): ")
+    assert "\n" not in message
+    if absence == "no scikit-image":
+        assert "scikit-image is not installed" in message
 
 
 @pytest.mark.parametrize("spec, message", [

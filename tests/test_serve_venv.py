@@ -91,6 +91,14 @@ def test_serve_extra_has_no_torch(serve_venv: Path) -> None:
     assert probe.returncode != 0 and "No module named 'torch'" in probe.stderr
 
 
+def test_eval_on_synthetic_names_the_train_extra(serve_venv: Path, tmp_path: Path) -> None:
+    finished = subprocess.run([str(serve_venv / "bin" / "adsm"), "eval", "--data", "synthetic:1"],
+                              capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert finished.returncode == 1 and "Traceback" not in finished.stderr, finished.stderr[-3000:]
+    assert finished.stderr.startswith("adsm: error: dataset 'synthetic:1' needs the train extra "
+                                      "(pip install -e '.[train]')") and finished.stderr.count("\n") == 1
+
+
 def test_image_command_serves_from_the_venv(serve_venv: Path, tmp_path: Path) -> None:
     env = {**os.environ, **image_env()}
     env["PATH"] = f"{serve_venv / 'bin'}{os.pathsep}{env['PATH']}"

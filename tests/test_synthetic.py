@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.datasets.photometric import Photometric, apply_camera
-from service.datasets.scene import Everywhere, Layer, Plane, Polygon, Segment, render
-from service.datasets.synthetic import (
+from training.data.synthetic.generator import (
     VALIDATION_CONFIG,
     VALIDATION_SEED,
     SyntheticConfig,
     generate,
     validation_split,
 )
-from service.datasets.textures import PHOTOS, ImageTexture, load_photos
+from training.data.synthetic.photometric import Photometric, apply_camera
+from training.data.synthetic.scene import Everywhere, Layer, Plane, Polygon, Segment, render
+from training.data.synthetic.textures import PHOTOS, ImageTexture, load_photos
 
 
 class SurfaceCoordinates:

@@ -164,7 +164,7 @@ def test_dense_and_patch_objectives_agree_on_the_same_pixel():
     data = TrainingData("synthetic", seed=0, spec=BatchSpec(height=48, width=240, max_disparity=16,
                                                             augmentation="none"))
     sample, _ = data.sample(0)
-    from training.data import patch_pairs
+    from training.data.samples import patch_pairs
     from training.losses import dense_candidates, matching_loss
     from training.networks import dense_features
 

@@ -32,7 +32,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add = parser.add_argument
     add("--model", type=Path, metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the shipped)")
     add("--data", required=True, metavar="SPEC",
-        help="synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH")
+        help="synthetic[:N] (train extra) | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH "
+             "| PATH")
     add("--max-disparity", type=int, metavar="D",
         help="disparity range D (default: the dataset's recommendation, else the model's)")
     add_match_flags(add, steps=("adaptive_p2", "border"))

@@ -1,10 +1,11 @@
-"""Stereo datasets for evaluation and training: readers of public layouts and the synthetic generator.
+"""Stereo datasets for evaluation and training: readers of public layouts and the SPEC parser.
 
 Everything here needs only NumPy and Pillow, so ``adsm eval`` (service) and the trainer (training) read
 data the same way. A dataset is a ``Sequence[StereoSample]`` with a ``name``. ``open_dataset`` takes a
 SPEC string:
 
-    synthetic[:N]         the first N pairs of the fixed synthetic validation split (default 20)
+    synthetic[:N]         the first N pairs of the fixed synthetic validation split (default 20); made by
+                          the generator of the train extra, found through an entry point (extensions.py)
     kitti2012:PATH        KITTI 2012 (colored_0, colored_1, disp_occ, disp_noc)
     kitti2015:PATH        KITTI 2015 (image_2, image_3, disp_occ_0, disp_noc_0)
     middlebury:PATH       Middlebury 2014 / MiddEval3 scene folders (im0.png, im1.png, disp0GT.pfm)
@@ -17,14 +18,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+from .extensions import open_extension, usages
 from .readers import READERS, detect_kind
 from .sample import StereoSample
-from .synthetic import SyntheticConfig, SyntheticStereo, generate, validation_split
 
-__all__ = ["StereoSample", "SyntheticConfig", "SyntheticStereo", "generate", "open_dataset",
-           "validation_split"]
-
-DEFAULT_SYNTHETIC_COUNT = 20
+__all__ = ["StereoSample", "open_dataset"]
 
 
 def open_dataset(spec: str) -> Sequence[StereoSample]:
@@ -35,15 +33,12 @@ def open_dataset(spec: str) -> Sequence[StereoSample]:
     kind, _, argument = spec.partition(":")
     if not argument and Path(spec).is_dir():  # a bare folder, even one named like a kind ("cones")
         return READERS[detect_kind(spec)](spec)
-    if kind == "synthetic":
-        if not argument:
-            return validation_split(DEFAULT_SYNTHETIC_COUNT)
-        if not argument.isdigit() or int(argument) < 1:
-            raise ValueError(f"dataset {spec!r}: synthetic:N needs a positive pair count N")
-        return validation_split(int(argument))
     if kind in READERS:
         if not argument:
             raise ValueError(f"dataset {spec!r}: {kind}:PATH needs the dataset folder")
         return READERS[kind](argument)
-    raise ValueError(f"dataset {spec!r}: expected synthetic[:N], {':PATH, '.join(READERS)}:PATH "
-                     "or an existing dataset folder")
+    dataset = open_extension(spec, kind, argument)
+    if dataset is None:
+        raise ValueError(f"dataset {spec!r}: expected {', '.join(usages())}, {':PATH, '.join(READERS)}:PATH "
+                         "or an existing dataset folder")
+    return dataset

@@ -1,16 +1,8 @@
-"""Training data: patch pairs and dense crops (torch) cut from the datasets in ``service.datasets``.
+"""Training data, built on the runtime's ``service.datasets`` (readers, ``StereoSample``).
 
-The readers and the synthetic generator live in ``service.datasets`` (NumPy + Pillow only), because
-``adsm eval`` in the runtime reads the same data and the runtime never imports ``training``.
+- ``samples.py``: patch pairs and dense crops as torch tensors
+- ``synthetic/``: the synthetic stereo generator (NumPy + Pillow, no torch)
+- ``photos.py``: scikit-image's bundled photographs, found as files
+
+Nothing is imported here, so that ``adsm eval --data synthetic`` loads the generator without torch.
 """
-
-from training.data.samples import (
-    Crop,
-    PatchPairs,
-    patch_pairs,
-    random_crop,
-    random_patch_pairs,
-    usable_pixels,
-)
-
-__all__ = ["Crop", "PatchPairs", "patch_pairs", "random_crop", "random_patch_pairs", "usable_pixels"]

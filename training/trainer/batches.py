@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from service.datasets import StereoSample, SyntheticConfig, generate, open_dataset
+from service.datasets import StereoSample, open_dataset
 from service.datasets.readers import detect_kind
-from service.datasets.synthetic import VALIDATION_SEED
-from training.data import Crop, PatchPairs, random_crop, random_patch_pairs
+from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
+from training.data.synthetic import VALIDATION_SEED, SyntheticConfig, generate
 
 SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
 EVALUATION_ONLY = ("middlebury2003-cones",)   # real pairs kept for evaluation: never trained on

@@ -225,7 +225,7 @@ def _describe_device(config: TrainConfig) -> str:
 def _describe_data(config: TrainConfig, data: TrainingData) -> str:
     if config.data != "synthetic":
         return config.data
-    return (f"synthetic (service.datasets.generate, seeds {config.seed * 10_000_000}+, "
+    return (f"synthetic (training.data.synthetic.generate, seeds {config.seed * 10_000_000}+, "
             f"{config.crop[0]}x{config.crop[1]}, disparities 0..{config.max_disparity}, "
             f"augmentation {config.augmentation}); validation: synthetic split, {config.val_pairs} pairs")
 

@@ -16,12 +16,15 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from service.datasets import StereoSample
+from training.data.photos import data_folder
+
 from .photometric import Photometric, apply_camera
-from .sample import StereoSample
 from .scene import Below, Ellipse, Everywhere, Layer, Plane, Polygon, Segment, render
 from .textures import random_texture
 
 VALIDATION_SEED = 1_000_000_000
+DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -75,11 +78,23 @@ class SyntheticStereo(Sequence[StereoSample]):
         return generate(self.first_seed + index % self.count, self.config)
 
 
-def validation_split(count: int = 20) -> SyntheticStereo:
+def validation_split(count: int = DEFAULT_VALIDATION_COUNT) -> SyntheticStereo:
     """The first ``count`` pairs of the fixed synthetic validation split."""
     split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=VALIDATION_CONFIG)
     split.name = f"synthetic validation ({count} pairs)"
     return split
+
+
+def open_validation_split(argument: str) -> SyntheticStereo:
+    """The dataset SPEC ``synthetic[:N]`` (``argument`` is N or ''), registered for ``service.datasets``.
+
+    Raises ModuleNotFoundError now, before any pair is drawn, when scikit-image's photos are missing, so
+    that ``adsm eval`` can name the extra to install.
+    """
+    if argument and (not argument.isdigit() or int(argument) < 1):
+        raise ValueError("synthetic:N needs a positive pair count N")
+    data_folder()
+    return validation_split(int(argument) if argument else DEFAULT_VALIDATION_COUNT)
 
 
 def random_scene(rng: np.random.Generator, *, height: int, width: int, max_disparity: int,

@@ -2,7 +2,7 @@
 
 Procedural kinds: multi-octave value noise, stripes, checker, blobs, and nearly flat paint (the hard,
 textureless case). Photos come from the images that scikit-image ships inside its wheel (astronaut,
-coffee, brick, grass, ...), read as plain files with Pillow: scikit-image itself is never imported.
+coffee, brick, grass, ...), read as plain files with Pillow (``training.data.photos``).
 Its ``motorcycle_left/right`` pair is a real stereo pair (Middlebury 2014) and is deliberately excluded.
 """
 
@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import importlib.util
-from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw
+
+from training.data.photos import data_folder
 
 # Natural photos and photographed textures in scikit-image's data folder (never a stereo pair).
 PHOTOS = ("astronaut.png", "brick.png", "camera.png", "chelsea.png", "coffee.png", "coins.png",
@@ -58,24 +58,15 @@ class ImageTexture:
         return colour.astype(np.float32, copy=False)
 
 
-def photo_folder() -> Path:
-    """scikit-image's data folder, found without importing scikit-image (its import pulls in SciPy)."""
-    spec = importlib.util.find_spec("skimage")
-    if spec is None or spec.origin is None:
-        raise RuntimeError("synthetic scenes need the photos bundled with scikit-image: "
-                           "pip install 'adsm-stereo[train]' (or scikit-image)")
-    return Path(spec.origin).parent / "data"
-
-
 @functools.lru_cache(maxsize=1)
 def load_photos() -> tuple[np.ndarray, ...]:
     """The bundled photos as float32 RGB arrays in [0, 1] (grey photos repeated over 3 channels)."""
-    folder = photo_folder()
+    folder = data_folder()
     photos = []
     for name in PHOTOS:
         path = folder / name
         if not path.is_file():
-            raise RuntimeError(f"bundled photo {path} is missing: reinstall scikit-image")
+            raise FileNotFoundError(f"bundled photo {path} is missing: reinstall scikit-image")
         with Image.open(path) as image:
             photos.append(np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0)
     return tuple(photos)

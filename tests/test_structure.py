@@ -1,0 +1,139 @@
+"""Who may import whom, read statically from the sources (docs/architecture.md, ../shared/DESIGN.md).
+
+`service/` imports nothing of `training/` or `export/`, no torch and no scikit-image (the `.[serve]`
+runtime has neither), and no module of `service/`, `training/`, `export/` takes part in an import cycle.
+Every import statement counts, also one inside a function: a lazy import is still a dependency.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+import tomllib
+from collections.abc import Iterator
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("service", "training", "export")
+FORBIDDEN_IN_SERVICE = {"training", "export", "torch", "skimage"}
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(path): path
+            for package in PACKAGES for path in sorted((ROOT / package).rglob("*.py"))}
+
+
+def imported_names(path: Path) -> Iterator[tuple[int, str]]:
+    """(line, dotted name) of everything a module imports; ``from a import b`` gives ``a.b``, which names a
+    module or, when it does not, something of the module ``a`` (``import_graph`` resolves which)."""
+    this = module_name(path)
+    package = this if path.name == "__init__.py" else this.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                origin = ".".join(base + ([node.module] if node.module else []))
+            else:
+                origin = node.module or ""
+            for alias in node.names:
+                yield node.lineno, f"{origin}.{alias.name}"
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the modules of ours it imports (a name that is not a module resolves to its package)."""
+    known = modules()
+    graph: dict[str, set[str]] = {}
+    for name, path in known.items():
+        targets = set()
+        for _, imported in imported_names(path):
+            while imported and imported not in known:
+                imported = imported.rpartition(".")[0]
+            if imported and imported != name:
+                targets.add(imported)
+        graph[name] = targets
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in sorted(graph.get(node, ())):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_service_imports_nothing_of_training_export_torch_or_scikit_image():
+    offences = [f"{path.relative_to(ROOT)}:{line} imports {name}"
+                for module, path in modules().items() if module.split(".")[0] == "service"
+                for line, name in imported_names(path) if name.split(".")[0] in FORBIDDEN_IN_SERVICE]
+    assert not offences, "\n".join(offences)
+
+
+def test_the_check_sees_relative_lazy_and_from_imports(tmp_path, monkeypatch):
+    # The rules above are only as good as the import reader: it must see every form of import.
+    package = tmp_path / "service" / "sub"
+    package.mkdir(parents=True)
+    (tmp_path / "service" / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("from .leaf import thing\n")
+    (package / "leaf.py").write_text("def f():\n    from training.data import synthetic\n"
+                                     "    import skimage.io\n    from .. import sub\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    names = {name for _, name in imported_names(package / "leaf.py")}
+    assert names == {"training.data.synthetic", "skimage.io", "service.sub"}
+    assert {name for _, name in imported_names(package / "__init__.py")} == {"service.sub.leaf.thing"}
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert cycles(graph) == [["a", "b", "c"]]
+
+
+def test_no_import_cycle_among_service_training_and_export():
+    graph = import_graph()
+    assert len(graph) > 100 and graph["training.data.synthetic.generator"] >= {"service.datasets"}
+    found = cycles(graph)
+    assert not found, "import cycles:\n" + "\n".join(" <-> ".join(cycle) for cycle in found)
+
+
+def test_pyproject_registers_the_runtimes_extension_kinds_with_the_extra_they_name():
+    from service.datasets.extensions import ENTRY_POINT_GROUP, EXTRA_KINDS
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    entries = project["entry-points"][ENTRY_POINT_GROUP]
+    assert set(EXTRA_KINDS) <= set(entries)
+    for kind, needs in EXTRA_KINDS.items():
+        assert needs.extra in project["optional-dependencies"]
+        module = entries[kind].partition(":")[0]
+        assert module.split(".")[0] in PACKAGES and (ROOT / module.replace(".", "/")).exists()

@@ -1,0 +1,28 @@
+"""The synthetic stereo generator: random layered scenes with exact ground truth (NumPy + Pillow).
+
+- ``scene.py``: planar layers in disparity space and their exact two-view ray casting
+- ``textures.py``: procedural textures and scikit-image's bundled photos (``training.data.photos``)
+- ``photometric.py``: per-view camera effects (blur, gain, gamma, noise, JPEG)
+- ``generator.py``: a seed -> a ``service.datasets.StereoSample``; the fixed validation split
+
+The runtime reads the validation split as the dataset SPEC ``synthetic[:N]`` without importing
+``training``: pyproject.toml registers ``open_validation_split`` in the ``adsm.datasets`` entry-point
+group, which ``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
+"""
+
+from .generator import (
+    DEFAULT_VALIDATION_COUNT,
+    VALIDATION_CONFIG,
+    VALIDATION_SEED,
+    SyntheticConfig,
+    SyntheticStereo,
+    generate,
+    open_validation_split,
+    random_scene,
+    validation_split,
+)
+from .photometric import Photometric, apply_camera
+
+__all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
+           "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate", "open_validation_split",
+           "random_scene", "validation_split"]
