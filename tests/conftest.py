@@ -1,5 +1,6 @@
 """Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service,
-an instant stand-in for the Matcher and a tiny PNG pair for service tests that do not need real matching."""
+an instant stand-in for the Matcher, a tiny PNG pair for service tests that do not need real matching, and
+``require``: the one way a test leaves out a missing prerequisite (skipped locally, failed in CI)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import os
 import tempfile
 import threading
 from collections.abc import AsyncIterator
+from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -19,6 +22,53 @@ os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir()
 from service import jit
 
 jit.configure_cache()
+
+
+# The evaluation pair beside the checkout (../shared, as DESIGN.md lays it out); evaluation only.
+CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
+
+
+def in_ci() -> bool:
+    """True under CI (``CI=true``, as GitHub Actions, GitLab and .ci/run's callers set it)."""
+    return os.environ.get("CI", "").strip().lower() in ("true", "1", "yes")
+
+
+def require(available: bool, what: str) -> None:
+    """Skip the calling test when ``what`` (a prerequisite) is not ``available``; under CI, fail instead.
+
+    CI installs every prerequisite (.ci/run), so a missing one there means the set-up broke, and a skip
+    would let the checks that need it pass unseen. Every test with a prerequisite goes through here
+    (tests/test_prerequisites.py holds the suite to that).
+    """
+    if available:
+        return
+    if in_ci():
+        pytest.fail(f"missing prerequisite under CI=true: {what}", pytrace=False)
+    pytest.skip(f"missing prerequisite: {what}", allow_module_level=True)
+
+
+def require_module(name: str) -> ModuleType:
+    """``pytest.importorskip`` through :func:`require`: the module, or a skip (locally) or failure (CI)."""
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError as error:
+        require(False, f"module {name} ({error})")
+        raise  # not reached: require skipped or failed
+
+
+def cones_folder() -> Path:
+    """The Cones pair's folder, or :func:`require`'s skip / CI failure when it is not beside the checkout."""
+    require((CONES / "left.png").is_file() and (CONES / "disp_left.png").is_file(),
+            f"the Cones evaluation pair at {CONES}")
+    return CONES
+
+
+@pytest.fixture
+def cones_dir() -> Path:
+    """:func:`cones_folder` as a fixture (``pytest.mark.usefixtures("cones_dir")`` on tests that read it)."""
+    return cones_folder()
 
 
 def unit_features(rng: np.random.Generator, channels: int, height: int, width: int) -> np.ndarray:

@@ -3,13 +3,13 @@ model on the Cones pair through `adsm predict --model`, each guarded at its own 
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
 import numpy as np
 import onnx
 import pytest
+from conftest import cones_folder
 from PIL import Image
 
 from service.cli import main
@@ -18,7 +18,6 @@ from service.io import read_disparity
 from service.matcher import Matcher, MatchOptions
 
 SHIPPED = Path(__file__).resolve().parent.parent / "service" / "models" / "ncc-baseline"
-CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
 
 
 def _texture(rng: np.random.Generator, components: int = 80):
@@ -99,22 +98,21 @@ SHIPPED_MODELS = sorted(p.name for p in SHIPPED.parent.iterdir() if (p / "manife
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not CONES.is_dir() and os.environ.get("CI") != "true",  # in CI a missing pair fails
-                    reason=f"evaluation pair not present at {CONES}")
 @pytest.mark.parametrize("name", SHIPPED_MODELS)
 def test_cones_with_adsm_predict(name, tmp_path, capsys):
     """A regression guard on the one real pair (evaluation only; no model was tuned on it)."""
+    cones = cones_folder()
     entry = load_manifest(SHIPPED.parent / name)["metrics"].get("middlebury2003-cones", {})
     if not str(entry.get("command", "")).startswith("python -m export.measure"):
         pytest.fail(f"{name}: no Cones figures measured by export.measure in its manifest; run "
                     f"`python -m export.measure --model service/models/{name} --write`")
     out = tmp_path / "cones.pfm"
-    code = main(["predict", str(CONES / "left.png"), str(CONES / "right.png"), "-o", str(out),
+    code = main(["predict", str(cones / "left.png"), str(cones / "right.png"), "-o", str(out),
                  "--model", str(SHIPPED.parent / name), "--max-disparity", "64"])
     assert code == 0, capsys.readouterr().err
     disparity = read_disparity(out)
-    truth = read_disparity(CONES / "disp_left.png")
-    with Image.open(CONES / "nonocc_mask.png") as mask:
+    truth = read_disparity(cones / "disp_left.png")
+    with Image.open(cones / "nonocc_mask.png") as mask:
         nonocc = np.asarray(mask) == 255
     known = np.isfinite(truth)
     error = np.abs(disparity - truth)

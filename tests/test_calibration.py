@@ -6,13 +6,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import cones_folder, require_module
 
 from service.calibration import CalibrationError, StereoCalibration, read_calibration
 from service.calibration.pair_check import SWAPPED_SHARE, VERTICAL_PX, check_pair
 from service.calibration.rectify import Rectifier
 
-cv2 = pytest.importorskip("cv2")
-CONES = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "middlebury2003-cones"
+cv2 = require_module("cv2")
 
 MIDDLEBURY = """cam0=[3979.911 0 1244.772; 0 3979.911 1019.507; 0 0 1]
 cam1=[3979.911 0 1369.115; 0 3979.911 1019.507; 0 0 1]
@@ -199,11 +199,10 @@ def test_rectification_lines_up_rows_and_gives_the_calibrated_disparity(tmp_path
 
 @pytest.fixture(scope="module")
 def cones():
-    if not (CONES / "left.png").is_file():
-        pytest.skip("Cones pair not present")
     from service.io import read_image
 
-    return read_image(CONES / "left.png"), read_image(CONES / "right.png")
+    folder = cones_folder()
+    return read_image(folder / "left.png"), read_image(folder / "right.png")
 
 
 def _shift_down(image: np.ndarray, rows: int) -> np.ndarray:

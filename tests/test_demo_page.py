@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require, require_module
 from PIL import Image
 
 CHROMIUM = "/usr/bin/chromium"
@@ -22,10 +23,6 @@ CHROMIUM_ARGS = [
     "--disable-background-networking", "--disable-component-update", "--disable-sync",
 ]
 
-pytestmark = pytest.mark.skipif(
-    not (os.access(CHROMIUM, os.X_OK) or shutil.which("chromium")),
-    reason=f"Chromium is not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)",
-)
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +56,10 @@ def server_url():
 
 @pytest.fixture(scope="module")
 def browser():
-    playwright_api = pytest.importorskip("playwright.sync_api")
+    # .ci/run installs Chromium when it runs as root; without it (or as another user) CI fails here.
+    require(os.access(CHROMIUM, os.X_OK) or shutil.which("chromium") is not None,
+            f"Chromium at {CHROMIUM} (apt-get install chromium; .ci/run does as root)")
+    playwright_api = require_module("playwright.sync_api")
     with playwright_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=shutil.which("chromium") or CHROMIUM,
                                              args=CHROMIUM_ARGS)

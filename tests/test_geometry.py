@@ -6,6 +6,7 @@ import io
 
 import numpy as np
 import pytest
+from conftest import require_module
 
 from service.api import geometry as api_geometry
 from service.calibration import StereoCalibration
@@ -45,7 +46,7 @@ def test_api_geometry_is_the_shared_module():
 
 
 def test_point_cloud_matches_opencv_reproject():
-    cv2 = pytest.importorskip("cv2")
+    cv2 = require_module("cv2")
     rng = np.random.default_rng(5)
     calib = StereoCalibration(focal_px=640.0, baseline_m=0.12, cx=150.3, cy=99.7, doffs=3.5)
     disparity = rng.uniform(5, 60, (200, 300)).astype(np.float32)

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import require
 
 ROOT = Path(__file__).resolve().parent.parent
 SERVICE_DIR = ROOT / "service"
@@ -115,8 +116,7 @@ def test_untrusted_cache_dirs_are_refused_with_a_log_line(tmp_path: Path, fault:
     elif fault == "symlinked file":
         (planted.parent / "link.nbc").symlink_to(planted)
     else:
-        if os.geteuid() != 0:
-            pytest.skip("changing a folder's owner needs root")
+        require(os.geteuid() == 0, "root, to give a folder a foreign owner")
         os.chown(untrusted, 12345, 12345)
     fallback = tmp_path / "fallback"
     done = _python(_CONFIGURE, ADSM_NUMBA_CACHE_DIR=str(untrusted), NUMBA_CACHE_DIR=str(fallback))

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from conftest import require_module
 
 from training.data.samples import patch_pairs, random_crop, random_patch_pairs, usable_pixels
 from training.data.synthetic import SyntheticConfig, generate
@@ -101,7 +102,7 @@ def test_patch_and_dense_modes_give_the_same_loss_and_gradient(pair, half_range)
 
 
 def test_patch_and_dense_modes_agree_for_a_conv_tower_of_the_zoo(pair):
-    networks = pytest.importorskip("training.networks")
+    networks = require_module("training.networks")
     towers = networks.build_tower_pair("29-3conv", channels=8).eval()
     truth = torch.from_numpy(pair.disparity)[None]
     images = [torch.from_numpy(v).permute(2, 0, 1)[None].float() / 255 for v in (pair.left, pair.right)]

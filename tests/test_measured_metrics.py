@@ -10,12 +10,12 @@ tests compare against it, nothing is chosen from it.
 from __future__ import annotations
 
 import functools
-import os
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import CONES as CONES_FOLDER
 
 from export.measure import CONES
 from service.datasets import open_dataset
@@ -25,7 +25,6 @@ from service.matcher import Matcher, MatchOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "service" / "models"
-CONES_FOLDER = ROOT.parent / "shared" / "data" / "middlebury2003-cones"
 SHIPPED = sorted(folder.name for folder in MODELS.iterdir() if (folder / "manifest.json").is_file())
 INT8_PAIRS = [(name.removesuffix("-int8"), name) for name in SHIPPED
               if name.endswith("-int8") and name.removesuffix("-int8") in SHIPPED]
@@ -50,9 +49,8 @@ FRESH_TOLERANCE = {"bad-N": 0.15, "epe": 0.03}   # percentage points; pixels
 MAX_INT8_BAD2_DELTA = 0.25
 MIN_INT8_AGREEMENT_1PX = 0.97
 
-# Skipped only off CI: with CI=true a missing evaluation pair fails the tests instead.
-needs_cones = pytest.mark.skipif(not CONES_FOLDER.is_dir() and os.environ.get("CI") != "true",
-                                 reason=f"evaluation pair not at {CONES_FOLDER}")
+# Skipped only off CI: with CI=true a missing evaluation pair fails the tests instead (conftest.require).
+needs_cones = pytest.mark.usefixtures("cones_dir")
 
 
 def readme_table() -> dict[str, dict[str, float]]:

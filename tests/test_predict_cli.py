@@ -246,10 +246,8 @@ def test_twelve_bit_grey_png_keeps_its_levels(capsys, tmp_path):
         _read(rgb16, "left")
 
 
-@pytest.mark.skipif(not (Path(__file__).resolve().parent.parent.parent / "shared" / "data"
-                         / "middlebury2003-cones" / "left.png").is_file(), reason="Cones pair not present")
-def test_swapped_pair_warns_and_exits_zero(capsys, tmp_path):
-    cones = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "middlebury2003-cones"
+def test_swapped_pair_warns_and_exits_zero(capsys, tmp_path, cones_dir):
+    cones = cones_dir
     out = str(tmp_path / "d.png")
     code, _, err = _run(capsys, str(cones / "right.png"), str(cones / "left.png"), "-o", out,
                         "--max-disparity", "64")

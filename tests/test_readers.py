@@ -17,7 +17,6 @@ from training.data import photos
 from training.data.synthetic import open_validation_split
 
 HEIGHT, WIDTH = 6, 10
-CONES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "middlebury2003-cones"
 
 
 def truth() -> np.ndarray:
@@ -109,9 +108,8 @@ def test_cones_layout_fixture(tmp_path):
     np.testing.assert_array_equal(pair.nonoccluded, np.isfinite(occluded_band(truth())))
 
 
-@pytest.mark.skipif(not CONES.is_dir(), reason="the shared Cones pair is not beside this checkout")
-def test_shared_cones_pair_reads_as_documented():
-    pair = open_dataset(str(CONES))[0]
+def test_shared_cones_pair_reads_as_documented(cones_dir):
+    pair = open_dataset(str(cones_dir))[0]
     assert pair.left.shape == (375, 450, 3) and pair.max_disparity == 64
     known = pair.disparity[np.isfinite(pair.disparity)]
     assert known.min() >= 5 and known.max() <= 56  # the README: 5.5 .. 55 px

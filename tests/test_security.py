@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 import yaml
-from conftest import TINY_PAIR, InstantMatcher, ready_client, tiny_png
+from conftest import TINY_PAIR, InstantMatcher, ready_client, require_module, tiny_png
 
 from service.api import Settings, create_app
 from service.io import read_disparity
@@ -158,7 +158,7 @@ def test_disparity_files_with_objects_are_refused(tmp_path: Path) -> None:
 
 
 def test_checkpoints_refuse_pickled_code(tmp_path: Path) -> None:
-    torch = pytest.importorskip("torch")
+    torch = require_module("torch")
     from training.checkpoint import load_checkpoint
 
     marker = tmp_path / "unpickled"
