@@ -33,9 +33,10 @@ from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
 from service.limits import SearchRange, search_range
 from service.memory import MemoryPlan, plan_request
-from service.optimization import MAX_PENALTY, aggregate
+from service.optimization import MAX_PENALTY, PATHS, aggregate
 from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
+from service.validation.confidence import cost_confidence, weigh_by_check
 
 __all__ = ["MatchOptions", "Matcher", "MemoryLimitError", "StereoResult", "Validity"]
 
@@ -60,10 +61,12 @@ class MatchOptions:
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
 
-    # --- Issue 12 (range offset): kept apart from the pipeline switches above. ---
+    # --- Issue 12 (range offset, confidence): kept apart from the pipeline switches above. ---
     # The search range is [min_disparity, min_disparity + max_disparity), as OpenCV's minDisparity and
     # numDisparities; negative values search matches right of the left pixel (service/limits.py).
     min_disparity: int = 0
+    # Also return StereoResult.confidence (service/validation/confidence.py): one more pass over the volume.
+    confidence: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.min_disparity, bool) or not isinstance(self.min_disparity, int | np.integer):
@@ -80,7 +83,7 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border"):
+        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border", "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -90,6 +93,7 @@ class StereoResult:
     disparity: np.ndarray  # float32 HxW, NaN where invalid and not filled
     validity: np.ndarray  # uint8 HxW, Validity codes
     timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
+    confidence: np.ndarray | None = None  # float32 HxW in [0, 1] with MatchOptions(confidence=True)
 
 
 def _check_images(left: Any, right: Any) -> None:
@@ -160,9 +164,9 @@ class Matcher:
             self._warm_kernels(left, right)
 
     def _warm_kernels(self, left: np.ndarray, right: np.ndarray) -> None:
-        # All on: cost volume, SGM, left-right winners, sub-pixel, inner check, filling; lr_check off:
-        # plain winner-takes-all.
-        every_kernel = MatchOptions(max_disparity=4)
+        # All on: cost volume, SGM, left-right winners, sub-pixel, confidence, inner check, filling;
+        # lr_check off: plain winner-takes-all.
+        every_kernel = MatchOptions(max_disparity=4, confidence=True)
         for options in (every_kernel, MatchOptions(max_disparity=4, lr_check=False, fill=False)):
             self(left, right, options)
 
@@ -258,6 +262,11 @@ class Matcher:
             lap("subpixel")
         else:
             disparity = winners.astype(np.float32)
+        confidence = None
+        if options.confidence:
+            # The lowest cost the volume can hold: every path's L is at least the raw cost, >= -scale.
+            confidence = cost_confidence(volume, winners, lowest=-(PATHS if options.sgm else 1) * scale)
+            lap("confidence")
         del volume, raw, aggregated
         if offset:  # cell indices -> disparities
             disparity += np.float32(offset)
@@ -276,5 +285,7 @@ class Matcher:
         if options.border:
             disparity, validity = fill_border_band(disparity, validity)
             lap("border")
+        if confidence is not None:
+            confidence = weigh_by_check(confidence, validity, disparity)
         timings["total"] = time.perf_counter() - start
-        return StereoResult(disparity, validity, timings)
+        return StereoResult(disparity, validity, timings, confidence)

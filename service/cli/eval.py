@@ -11,6 +11,7 @@ SPEC: synthetic[:N] | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -20,6 +21,7 @@ from service.cli.match_flags import add_match_flags, match_options
 from service.datasets import open_dataset
 from service.evaluation import BAD_THRESHOLDS
 from service.evaluation.breakdown import format_breakdown
+from service.evaluation.sparsification import format_sparsification
 from service.features import ModelError
 
 
@@ -36,7 +38,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
              "| PATH")
     add("--max-disparity", type=int, metavar="D",
         help="disparity range D (default: the dataset's recommendation, else the model's)")
-    add_match_flags(add, steps=("adaptive_p2", "border"))
+    add_match_flags(add, steps=("adaptive_p2", "border", "weighted_median"))
+    add("--confidence", action="store_true",
+        help="also compute the confidence map and print its sparsification curve (bad-2 of the most "
+        "confident 10..100 %% of the pixels)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
     add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
     parser.set_defaults(func=run)
@@ -53,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = match_options(args)
+    options = dataclasses.replace(match_options(args), confidence=args.confidence)
     matcher.warmup()
 
     def progress(index: int, pair: dict[str, Any]) -> None:
@@ -86,6 +91,8 @@ def format_table(report: dict[str, Any]) -> str:
         lines.append(f"{subset:<12}{cells}")
     if "breakdown" in report:
         lines.append(format_breakdown(report["breakdown"]))
+    if "sparsification" in report:
+        lines.append(format_sparsification(report["sparsification"]))
     lines.append(f"seconds per pair: {report['seconds_per_pair']:.3f}  (stages: "
                  + ", ".join(f"{k} {v:.3f}" for k, v in report["stage_seconds"].items()) + ")")
     return "\n".join(lines)

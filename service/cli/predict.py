@@ -73,6 +73,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--model", type=Path, metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the shipped)")
     add_match_flags(add)
     add("--validity", metavar="PATH", help="also write the validity map (.png or .npy)")
+    add("--confidence", metavar="PATH", help="also write the confidence map in [0, 1]: .npy float32, or .png "
+        "8-bit (x 255); pixels the left-right check rejected stay under 0.1, missing ones are 0")
     metric = parser.add_argument_group("calibration and metric outputs")
     metric.add_argument("--calib", type=Path, metavar="FILE",
                         help="Middlebury calib.txt, KITTI calib_cam_to_cam.txt, or OpenCV .yml/.xml")
@@ -107,6 +109,7 @@ class _Targets:
     disparity: str
     format: str
     validity: str | None
+    confidence: str | None
     depth: str | None
     pointcloud: str | None
 
@@ -146,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = match_options(args)
+    options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
     runner = _Runner(args, matcher, options, targets, calibration, loaded=time.perf_counter() - started)
     if not batch:
         runner.one(pairs[0])
@@ -186,6 +189,9 @@ class _Runner:
                lambda path: write_disparity(path, result.disparity, write.format))
         if write.validity is not None:
             _write(write.path(write.validity, name), lambda path: _write_validity(path, result.validity))
+        if write.confidence is not None:
+            _write(write.path(write.confidence, name),
+                   lambda path: _write_confidence(path, result.confidence))
         if calibration is not None and (write.depth or write.pointcloud):
             self._metric(name, calibration, result, left)
         if not self.args.no_check:
@@ -352,20 +358,21 @@ def _targets(args: argparse.Namespace, batch: bool) -> _Targets:
     if disparity is None:
         raise ValueError("the disparity output is missing: -o OUT (or --out-dir DIR)")
     output_format = args.format or format_for_path(disparity)
-    if args.validity is not None and Path(args.validity).suffix.lower() not in (".png", ".npy"):
-        raise ValueError(f"--validity must name a .png or .npy file, got {args.validity!r}")
+    for flag, target in (("--validity", args.validity), ("--confidence", args.confidence)):
+        if target is not None and Path(target).suffix.lower() not in (".png", ".npy"):
+            raise ValueError(f"{flag} must name a .png or .npy file, got {target!r}")
     if args.depth is not None:
         from service.geometry import depth_format_for_path
 
         depth_format_for_path(args.depth)
     if args.pointcloud is not None and Path(args.pointcloud).suffix.lower() != ".ply":
         raise ValueError(f"--pointcloud must name a .ply file, got {args.pointcloud!r}")
-    templates = {"-o": disparity, "--validity": args.validity, "--depth": args.depth,
-                 "--pointcloud": args.pointcloud}
+    templates = {"-o": disparity, "--validity": args.validity, "--confidence": args.confidence,
+                 "--depth": args.depth, "--pointcloud": args.pointcloud}
     for flag, template in templates.items():
         if template is not None and batch and "{name}" not in template:
             raise ValueError(f"{flag} {template!r} must hold {{name}} when several pairs are written")
-    return _Targets(disparity, output_format, args.validity, args.depth, args.pointcloud)
+    return _Targets(disparity, output_format, args.validity, args.confidence, args.depth, args.pointcloud)
 
 
 def _check_sizes(pair: _Pair) -> tuple[int, int]:
@@ -448,3 +455,12 @@ def _write_validity(path: Path, validity: np.ndarray) -> None:
         np.save(path, validity, allow_pickle=False)
     else:
         Image.fromarray(validity).save(path, format="PNG")
+
+
+def _write_confidence(path: Path, confidence: np.ndarray) -> None:
+    """float32 [0, 1] as .npy, or 8-bit grey PNG (confidence x 255, rounded)."""
+    if path.suffix.lower() == ".npy":
+        np.save(path, confidence.astype(np.float32), allow_pickle=False)
+    else:
+        levels = np.rint(np.clip(confidence, 0.0, 1.0) * 255.0).astype(np.uint8)
+        Image.fromarray(levels).save(path, format="PNG")

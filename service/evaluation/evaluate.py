@@ -19,6 +19,7 @@ from service.matcher import MatchOptions, StereoResult
 
 from .breakdown import Breakdown
 from .metrics import ErrorCounts, count_errors
+from .sparsification import Sparsification
 
 REPORT_SCHEMA = "adsm-eval/1"
 
@@ -32,12 +33,14 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
 
     ``on_pair(index, pair_report)`` is called after each pair (progress output). Returns a JSON-ready
     report: ``all`` and ``nonoccluded`` summaries, the error ``breakdown`` (border strip, rejected,
-    accepted by distance to a disparity jump: ``breakdown.py``), seconds per pair, stage seconds, per pair.
+    accepted by distance to a disparity jump: ``breakdown.py``), seconds per pair, stage seconds, per pair;
+    with ``options.confidence`` also the ``sparsification`` curve (``sparsification.py``).
     """
     options = MatchOptions() if options is None else options
     everything, visible = ErrorCounts(), ErrorCounts()
     masked_pairs, seconds = 0, []
     breakdown = Breakdown()
+    sparsification = Sparsification() if options.confidence else None
     stage_seconds: dict[str, float] = {}
     pairs = []
     for index in range(len(dataset)):
@@ -56,6 +59,8 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
         everything += pair_all
         pair_breakdown = Breakdown().add(result.disparity, sample.disparity, result.validity)
         breakdown += pair_breakdown
+        if sparsification is not None and result.confidence is not None:
+            sparsification.add(result.disparity, sample.disparity, result.confidence)
         report = {"name": sample.name, "height": sample.left.shape[0], "width": sample.left.shape[1],
                   "max_disparity": search, "seconds": round(seconds[-1], 4), "all": pair_all.summary(),
                   "nonoccluded": None, "breakdown": pair_breakdown.summary()}
@@ -84,4 +89,4 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
         "seconds_per_pair": round(sum(seconds) / len(seconds), 4),
         "stage_seconds": {stage: round(total / len(pairs), 4) for stage, total in stage_seconds.items()},
         "per_pair": pairs,
-    }
+    } | ({} if sparsification is None else {"sparsification": sparsification.summary()})

@@ -35,6 +35,7 @@ _OUTSIDE = np.float32(1e30)
 # loop took the 4 paths at 375x1242x192, 2 threads, from 0.25 s to 0.07 s.
 _NO_MINIMUM = np.int32(2**30)
 MAX_PENALTY = 4096.0
+PATHS = 4  # summed into the result: every aggregated cost lies in [PATHS x min C, PATHS x (max C + P2)]
 _INT16_MIN, _INT16_MAX = np.float32(-32768.0), np.float32(32767.0)
 # Grey-level step at which the image-adaptive P2 halves (see :func:`aggregate`). Measured with the
 # 13-1deconv3-4conv 32-channel towers at P1/P2 45/360 (border step on): Cones bad-2 10.08 -> 8.94 %,
