@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
+from training.data.evaluation_only import CONES_FOLDER
 
 
 def _free_port() -> int:
@@ -96,7 +96,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, help="ADSM_THREADS for the server (default: all cores)")
     parser.add_argument("--model", help="model folder (default: the shipped model)")
-    parser.add_argument("--cones", type=Path, default=CONES, help="folder with left.png and right.png")
+    parser.add_argument("--cones", type=Path, default=CONES_FOLDER, help="folder with left.png and right.png")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args(argv)
 

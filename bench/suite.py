@@ -29,8 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from training.data.evaluation_only import CONES_FOLDER
+
 REPOSITORY = Path(__file__).resolve().parent.parent
-CONES = REPOSITORY.parent / "shared" / "data" / "middlebury2003-cones"
 SIZES = {"cones": (375, 450, 64), "kitti": (375, 1242, 192)}
 SGM_PATHS = 4
 # Targets of issue 6 (375x1242, D=192, 2 cores, whole predict minus decoding).
@@ -41,7 +42,7 @@ TARGET_DEFAULT_S, TARGET_PAPER_INT8_S, TARGET_SGM_NS, TARGET_TOWER_EFFICIENCY, T
 def pair_png(size: str) -> tuple[bytes, bytes]:
     """The benchmark pair of a size as PNG bytes (decoding is a measured stage)."""
     if size == "cones":
-        return (CONES / "left.png").read_bytes(), (CONES / "right.png").read_bytes()
+        return (CONES_FOLDER / "left.png").read_bytes(), (CONES_FOLDER / "right.png").read_bytes()
     from PIL import Image
 
     from bench.runtime import realistic_images

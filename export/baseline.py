@@ -27,7 +27,8 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from service.features.manifest import TOWER_FILES, write_manifest
+from service.features.defaults import RUNTIME_DEFAULTS
+from service.features.manifest import SCHEMA_ID, TOWER_FILES, write_manifest
 
 OPSET = 17
 GREY = (0.299, 0.587, 0.114)
@@ -35,13 +36,10 @@ GREY = (0.299, 0.587, 0.114)
 # has energy (1/255)^2 ~ 1.5e-5, so textured windows keep a unit norm, while a flat window (whose
 # zero-mean residual is float32 rounding, ~1e-8) maps to ~1e-5 instead of amplified rounding noise.
 NORM_EPS = 1e-6
-# The contract's default scale (docs/architecture.md): NCC 1 -> cost -128.
-COST_SCALE = 128.0
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
 DEFAULT_WINDOW = 9
 SGM_P1 = 65.0
 SGM_P2 = 360.0
-DEFAULT_MAX_DISPARITY = 128
 
 
 def build_tower(window: int, *, side: str) -> onnx.ModelProto:
@@ -97,7 +95,7 @@ def baseline_manifest(
         build["command"] = "python -m export.baseline --out <folder> --measure"
         build["selection"] = selection
     return {
-        "schema": "adsm-model/1",
+        "schema": SCHEMA_ID,
         "name": name,
         "description": (
             f"Classical baseline: normalised cross-correlation of {window}x{window} grey windows. "
@@ -107,9 +105,9 @@ def baseline_manifest(
         "channels": window * window,
         "receptive_field": window,
         "shared_towers": True,
-        "input": {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0], "std": [1.0, 1.0, 1.0]},
+        "input": RUNTIME_DEFAULTS.input(),
         "cost": {
-            "scale": COST_SCALE,
+            "scale": RUNTIME_DEFAULTS.cost_scale,  # NCC 1 -> cost -128
             "definition": "CL[y, x, d] = -scale * NCC(window_L(y, x), window_R(y, x - d)); "
             "x - d < 0 -> +scale",
             "dtype": "int16",
@@ -120,7 +118,7 @@ def baseline_manifest(
             "paths": 4,
             "tuned_on": "synthetic pairs of training.data.synthetic (python -m export.baseline --measure)",
         },
-        "disparity": {"default_max": DEFAULT_MAX_DISPARITY, "trained_range": [0, 0]},
+        "disparity": {"default_max": RUNTIME_DEFAULTS.default_max, "trained_range": [0, 0]},
         "onnx": {"opset": OPSET, "precision": "fp32", "exporter": "onnx helper API (export/baseline.py)"},
         "training": None,
         "build": build,
@@ -154,7 +152,8 @@ def build_folder(
 # then chosen by the rule every shipped model follows (service.evaluation.tuning).
 TUNING_SEED = 700_000_000
 WINDOWS = (5, 7, 9, 11, 13)
-PAPER_PENALTIES = (30.0, 160.0)  # the window is chosen at the paper's P1, P2, then the penalties at it
+# The window is chosen at the paper's P1, P2 (the runtime defaults), then the penalties at it.
+PAPER_PENALTIES = (RUNTIME_DEFAULTS.p1, RUNTIME_DEFAULTS.p2)
 # Cost-volume work grows with w^2, so a larger window must beat a smaller one by more than this (bad-2, %).
 WINDOW_MARGIN = 0.5
 

@@ -34,10 +34,10 @@ from pathlib import Path
 from typing import Any
 
 from service.features.manifest import ModelError, load_manifest, write_manifest
+from training.data.evaluation_only import CONES_FOLDER as DEFAULT_CONES
+from training.data.evaluation_only import CONES_NAME as CONES
 
-CONES = "middlebury2003-cones"
 SYNTHETIC = "synthetic-validation"
-DEFAULT_CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
 DEFAULT_SYNTHETIC_PAIRS = 20
 # Figures kept per pixel subset (service.evaluation.metrics.ErrorCounts.summary).
 FIGURES = ("bad1", "bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "pixels")

@@ -41,13 +41,13 @@ from export.measure import datasets_of, measure_command, measure_folder
 from service.features.manifest import TOWER_FILES, load_manifest, write_manifest
 from service.features.towers import FeatureTowers
 from service.io import read_image
+from training.data.evaluation_only import EVALUATION_ONLY
 from training.data.photos import data_folder
 
 DEFAULT_CALIBRATION = "skimage:astronaut,chelsea,rocket,brick,gravel"
 HELD_OUT = "skimage:coffee"          # accuracy image, never part of the default calibration
 CALIBRATION_SHIFT = 8                # px between the two calibration views
 CROP = (192, 256)                    # calibration crop (H, W): large enough for the 45 px receptive fields
-EVALUATION_ONLY = ("middlebury2003-cones",)
 SYNTHETIC_SEED = 900_000_000         # calibration pairs: below the synthetic validation seeds (1e9 on)
 CALIBRATION_HELP = (
     "calibration images for --int8: 'skimage' or 'skimage:NAME,NAME' (images shipped in scikit-image's "

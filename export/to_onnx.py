@@ -7,10 +7,10 @@ channels, receptive field, input normalisation, cost scale, SGM P1/P2, disparity
 each file, the training provenance copied from the checkpoint, and metrics measured on the written
 folder (its ONNX files through the runtime, as ``python -m export.measure --write`` does: Cones when
 --cones exists, the synthetic validation split's --synthetic pairs; --no-measure leaves them empty).
-Settings the checkpoint does not record (its ``deploy`` dict) fall back to cost scale 128, P1 30, P2 160,
-default_max 128, or come from the options above. With --int8, DIR-int8 holds the int8 twin, measured on
-the same data sets; the export log prints its accuracy against fp32, which its manifest records
-(onnx.quantization.accuracy_vs_fp32).
+Settings the checkpoint does not record (its ``deploy`` dict) fall back to the runtime defaults
+(``service.features.defaults.RUNTIME_DEFAULTS``), or come from the options above. With --int8, DIR-int8
+holds the int8 twin, measured on the same data sets; the export log prints its accuracy against fp32,
+which its manifest records (onnx.quantization.accuracy_vs_fp32).
 
 Each tower becomes one ONNX graph built from the folded PyTorch weights: ``image`` [1, 3, H, W] ->
 edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
@@ -43,16 +43,14 @@ from export.measure import (
     measure_command,
     measure_folder,
 )
-from service.features.manifest import TOWER_FILES, ModelError, write_manifest
+from service.features.defaults import RUNTIME_DEFAULTS
+from service.features.manifest import SCHEMA_ID, TOWER_FILES, ModelError, write_manifest
 from training.checkpoint import Checkpoint, load_checkpoint
 from training.networks import FeatureTower, TowerPair, same_padding
 from training.networks.tower import NORM_EPS
 
 DEFAULT_OPSET = 17
 SUPPORTED_OPSETS = range(13, 22)
-# Runtime settings used when the checkpoint does not record its own (docs/networks.md, "cost scale").
-DEFAULTS = {"cost_scale": 128.0, "p1": 30.0, "p2": 160.0, "default_max": 128,
-            "input": {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0], "std": [1.0, 1.0, 1.0]}}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +139,7 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
     ``metrics`` start empty: the checkpoint's figures come from the PyTorch towers, and a manifest carries
     only figures measured on its own folder (:func:`export_folder` with ``datasets``).
     """
-    deploy = {**DEFAULTS, **checkpoint.deploy, **{k: v for k, v in overrides.items() if v is not None}}
+    deploy = {**checkpoint.deploy_settings(), **{k: v for k, v in overrides.items() if v is not None}}
     trained_range = deploy.get("trained_range")
     if trained_range is None:
         if checkpoint.training is not None:
@@ -149,9 +147,12 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
                              "--trained-range LOW HIGH")
         trained_range = [0, 0]  # untrained: it has seen no disparity at all
     sgm: dict[str, Any] = {"p1": float(deploy["p1"]), "p2": float(deploy["p2"]), "paths": 4}
-    sgm["tuned_on"] = deploy.get("sgm_tuned_on", "not tuned: the paper's P1 = 30, P2 = 160 at cost scale 128")
+    paper = RUNTIME_DEFAULTS
+    untuned = (f"not tuned: the paper's P1 = {paper.p1:g}, P2 = {paper.p2:g} at cost scale "
+               f"{paper.cost_scale:g}")
+    sgm["tuned_on"] = deploy.get("sgm_tuned_on", untuned)
     return {
-        "schema": "adsm-model/1",
+        "schema": SCHEMA_ID,
         "name": name,
         "description": f"ADSM {model.config.name} towers ({model.config.table} of the paper), "
                        f"{model.channels} features, {'shared' if model.shared else 'separate'} "
@@ -227,12 +228,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help="also write an int8 copy to OUT-int8: static QDQ quantization, per-channel int8 "
                              "weights, uint8 activations; its accuracy against fp32 is measured and recorded")
     parser.add_argument("--calibration", default=DEFAULT_CALIBRATION, help=CALIBRATION_HELP)
+    defaults = RUNTIME_DEFAULTS
     parser.add_argument("--cost-scale", type=float,
-                        help="manifest cost.scale (default: checkpoint, else 128)")
-    parser.add_argument("--p1", type=float, help="SGM P1 in cost units (default: checkpoint, else 30)")
-    parser.add_argument("--p2", type=float, help="SGM P2 in cost units (default: checkpoint, else 160)")
+                        help=f"manifest cost.scale (default: checkpoint, else {defaults.cost_scale:g})")
+    parser.add_argument("--p1", type=float,
+                        help=f"SGM P1 in cost units (default: checkpoint, else {defaults.p1:g})")
+    parser.add_argument("--p2", type=float,
+                        help=f"SGM P2 in cost units (default: checkpoint, else {defaults.p2:g})")
     parser.add_argument("--max-disparity", type=int, dest="default_max",
-                        help="manifest disparity.default_max (default: checkpoint, else 128)")
+                        help="manifest disparity.default_max "
+                             f"(default: checkpoint, else {defaults.default_max})")
     parser.add_argument("--trained-range", type=int, nargs=2, metavar=("LOW", "HIGH"),
                         help="disparities seen in training (default: checkpoint; [0, 0] if untrained)")
     parser.add_argument("--cones", type=Path, default=DEFAULT_CONES, metavar="PATH",

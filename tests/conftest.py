@@ -19,13 +19,12 @@ import pytest
 # Keep test runs off the user's cache: kernels cache here, as `adsm` would with this variable set (child
 # processes inherit it).
 os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "adsm-test-numba-cache"))
+from stand_in import MatcherRules
+
 from service import jit
+from training.data.evaluation_only import CONES_FOLDER as CONES  # ../shared/data/...; evaluation only
 
 jit.configure_cache()
-
-
-# The evaluation pair beside the checkout (../shared, as DESIGN.md lays it out); evaluation only.
-CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
 
 
 def in_ci() -> bool:
@@ -97,7 +96,7 @@ async def ready_client(app, *, timeout: float = 120) -> AsyncIterator:
             yield client
 
 
-class InstantMatcher:
+class InstantMatcher(MatcherRules):
     """Stands in for the Matcher: answers at once (or once ``gate`` is set), or raises ``error``."""
 
     def __init__(self, gate: threading.Event | None = None, error: Exception | None = None) -> None:

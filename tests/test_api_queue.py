@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from conftest import disparity_scope
 from PIL import Image
+from stand_in import MatcherRules
 
 from service.api import Settings, create_app
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
@@ -31,7 +32,7 @@ def anyio_backend() -> str:
     return "asyncio"
 
 
-class BlockingMatcher:
+class BlockingMatcher(MatcherRules):
     """Stands in for the Matcher; each call waits for ``release`` (and warm-up for ``warmed``)."""
 
     def __init__(self, *, warm_error: Exception | None = None) -> None:

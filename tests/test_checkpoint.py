@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from service.features.defaults import RUNTIME_DEFAULTS
 from training.checkpoint import FORMAT, load_checkpoint, save_checkpoint
 from training.networks import build_tower_pair
 
@@ -38,6 +39,11 @@ def test_round_trip_restores_model_optimizer_and_records(tmp_path: Path) -> None
     assert (checkpoint.step, checkpoint.metrics, checkpoint.training) == (1, {"cones": {"bad2": 40.0}},
                                                                           PROVENANCE)
     assert checkpoint.config == {"lr": 1e-3} and checkpoint.deploy["trained_range"] == [0, 64]
+    # What export and validation read: the recorded settings over the one set of runtime defaults.
+    settings = checkpoint.deploy_settings()
+    assert settings == {**RUNTIME_DEFAULTS.deploy(), "p1": 20.0, "trained_range": [0, 64]}
+    assert (settings["p2"], settings["cost_scale"], settings["default_max"]) == (160.0, 128.0, 128)
+    assert settings["input"] == {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0] * 3, "std": [1.0] * 3}
     model = checkpoint.build_model()
     assert not model.training
     for name, value in pair.state_dict().items():

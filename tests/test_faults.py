@@ -26,6 +26,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
+from stand_in import MatcherRules
 
 from service.api import Settings, create_app
 from service.features import default_model_dir, load_manifest
@@ -36,7 +37,7 @@ ROOT = TESTS.parent
 GATE_ENV = "ADSM_TEST_GATE_DIR"
 
 
-class GatedMatcher:
+class GatedMatcher(MatcherRules):
     """Stands in for the Matcher; call k waits for ``<gate>/release-k`` (and announces ``called-k``)."""
 
     def __init__(self, gate: Path) -> None:

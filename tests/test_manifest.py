@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from service.features import (
     write_manifest,
 )
 from service.features import manifest as mf
+from service.features.defaults import RUNTIME_DEFAULTS
 
 SHIPPED = sorted(p.parent for p in (Path(mf.MODELS_DIR)).glob("*/manifest.json"))
 
@@ -193,3 +195,17 @@ def test_write_does_not_mutate_the_template(tmp_path):
     write_manifest(_folder(tmp_path), template)
     assert template == before
     assert "files" in json.loads((tmp_path / "manifest.json").read_text())
+
+
+def test_runtime_defaults_fill_a_valid_manifest_and_cannot_be_changed():
+    defaults = RUNTIME_DEFAULTS
+    manifest = _manifest()
+    manifest["input"] = defaults.input()
+    manifest["cost"]["scale"] = defaults.cost_scale
+    manifest["sgm"].update(p1=defaults.p1, p2=defaults.p2)
+    manifest["disparity"]["default_max"] = defaults.default_max
+    validate_manifest(manifest)
+    jsonschema.validate(manifest, mf.schema())
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        defaults.p1 = 1.0  # type: ignore[misc]
+    assert defaults.deploy({"p1": 5.0})["p1"] == 5.0 and defaults.p1 == 30.0

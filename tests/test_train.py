@@ -13,6 +13,7 @@ import torch
 
 from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint
+from training.data.evaluation_only import CONES_FOLDER as CONES
 from training.networks import build_tower_pair
 from training.schedule import FLOOR_FRACTION, learning_rate
 from training.train import build_parser, main, recorded_command
@@ -21,7 +22,6 @@ from training.trainer.objective import Objective
 from training.validate import TorchTowers, tune_sgm
 
 # The evaluation-only real pair, beside the checkout as in CI.
-CONES = Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones"
 
 TINY = dict(channels=4, crop=(48, 96), max_disparity=24, batch_size=2, val_pairs=1, cones="", threads=1)
 

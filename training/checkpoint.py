@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from service.features.defaults import RUNTIME_DEFAULTS
 from training.networks import TowerPair, build_tower_pair
 
 FORMAT = "adsm-checkpoint/1"
@@ -46,6 +47,11 @@ class Checkpoint:
                                  learn_temperature=bool(self.spec.get("learn_temperature", True)))
         model.load_state_dict(self.state_dict)
         return model.eval()
+
+    def deploy_settings(self) -> dict[str, Any]:
+        """``deploy`` over the runtime defaults (``service.features.defaults``), as export and validation
+        read it."""
+        return RUNTIME_DEFAULTS.deploy(self.deploy)
 
     def restore_rng(self, generators: Mapping[str, np.random.Generator] | None = None) -> None:
         """Put Python's and torch's global generators, and the named NumPy ``generators``, back where the

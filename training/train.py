@@ -19,12 +19,12 @@ import shlex
 import sys
 from pathlib import Path
 
+from training.data.evaluation_only import CONES_SPEC
 from training.losses import LABELS
 from training.networks import DEFAULT_CONFIG, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
 from training.trainer import TrainConfig, train
 from training.trainer.batches import AUGMENTATIONS, DEFAULT_AUGMENTATION
-from training.validate import CONES
 
 # Paper defaults for patch mode (section 4: batch 128, 40000 iterations); dense defaults measured here.
 MODE_DEFAULTS = {"patch": {"iterations": 40000, "batch_size": 128},
@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "to the fractional truth (dense mode; docs/training.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
-    parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
+    parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
     parser.add_argument("--init-from", metavar="CKPT",
                         help="start from these weights (same config; more channels are filled in), with a "
                              "fresh optimizer and schedule")

@@ -24,15 +24,11 @@ import torch
 from service.datasets import StereoSample, open_dataset
 from service.evaluation.evaluate import evaluate
 from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
+from service.features.defaults import RUNTIME_DEFAULTS
 from service.matcher import Matcher
 from training.checkpoint import load_checkpoint, save_checkpoint
+from training.data.evaluation_only import CONES_NAME, CONES_SPEC
 from training.networks import TowerPair, dense_features
-
-DEFAULT_DEPLOY = {"cost_scale": 128.0, "p1": 30.0, "p2": 160.0, "default_max": 128,
-                  "input": {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0],
-                            "std": [1.0, 1.0, 1.0]}}
-# The evaluation-only real pair, beside the checkout as in CI (../shared next to the repository).
-CONES = "cones:" + str(Path(__file__).resolve().parents[2] / "shared" / "data" / "middlebury2003-cones")
 
 
 class TorchTowers:
@@ -42,7 +38,7 @@ class TorchTowers:
     folder = None
 
     def __init__(self, model: TowerPair, deploy: Mapping[str, Any] | None = None, *, cache: int = 0) -> None:
-        deploy = {**DEFAULT_DEPLOY, **(deploy or {})}
+        deploy = RUNTIME_DEFAULTS.deploy(deploy)
         self.model = model
         self.manifest = {"name": f"torch-{model.config.name}-{model.channels}", "channels": model.channels,
                          "receptive_field": model.receptive_field,
@@ -107,13 +103,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="grid P1/P2 on the synthetic split, store the best in the checkpoint's deploy")
     parser.add_argument("--p1", type=float, nargs="+", default=P1_GRID, help="P1 grid for --tune")
     parser.add_argument("--p2", type=float, nargs="+", default=P2_GRID, help="P2 grid for --tune")
-    parser.add_argument("--cones", default=CONES, help="evaluation-only real pair SPEC ('' to skip)")
+    parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     checkpoint = load_checkpoint(args.checkpoint)
     model = checkpoint.build_model()
-    deploy = {**DEFAULT_DEPLOY, **checkpoint.deploy}
+    deploy = checkpoint.deploy_settings()
     synthetic = open_dataset(f"synthetic:{args.pairs}")
     if args.tune:
         best, rows = tune_sgm(model, synthetic, deploy=deploy, p1_grid=args.p1, p2_grid=args.p2, log=print)
@@ -124,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     metrics = dict(checkpoint.metrics)
     metrics["synthetic-validation"] = runtime_metrics(model, synthetic, deploy=deploy)
     if args.cones:
-        metrics["middlebury2003-cones"] = runtime_metrics(model, open_dataset(args.cones), deploy=deploy)
+        metrics[CONES_NAME] = runtime_metrics(model, open_dataset(args.cones), deploy=deploy)
     print(json.dumps({"deploy": {k: deploy[k] for k in ("p1", "p2", "cost_scale")}, "metrics": metrics},
                      indent=1))
     if args.tune:

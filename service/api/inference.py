@@ -27,12 +27,20 @@ from service.api.metrics import ServiceMetrics
 from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
 from service.api.settings import Settings
 from service.io import ImageDecodeError, ImageTooLargeError, image_size, read_image
+from service.limits import DisparityRangeError
 from service.matcher import Matcher, MatchOptions, StereoResult
-from service.memory import TOWER_WORK_FACTOR, plan_request, tower_work_limit
+from service.memory import TOWER_WORK_FACTOR, tower_work_limit
 
 logger = logging.getLogger("service.api")
 
-_WARMING_RETRY_AFTER_S = 5
+# Seconds to wait after a 503 whose end the server cannot estimate (loading, warming up, draining, too many
+# unsent answers); a full queue estimates its own wait (queue.py).
+WARMING_RETRY_AFTER_S = 5
+
+
+def warming_headers() -> dict[str, str]:
+    """The headers of such a 503: a fixed Retry-After."""
+    return {"Retry-After": str(WARMING_RETRY_AFTER_S)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +68,7 @@ class InferenceService:
     @property
     def manifest(self) -> dict[str, Any]:
         if self.matcher is None:
-            raise HTTPException(503, "the model is not loaded yet", headers=self._warming_headers())
+            raise HTTPException(503, "the model is not loaded yet", headers=warming_headers())
         return self.matcher.manifest
 
     def load(self) -> None:
@@ -93,10 +101,10 @@ class InferenceService:
             await _discard_body(request)
             raise HTTPException(
                 503, "the server is shutting down; retry (another instance may answer)",
-                headers={**self._warming_headers(), "Connection": "close"},
+                headers={**warming_headers(), "Connection": "close"},
             )
         if not self.ready:
-            raise HTTPException(503, "the model is warming up", headers=self._warming_headers())
+            raise HTTPException(503, "the model is warming up", headers=warming_headers())
         self._check_unsent()
         try:
             admission = self.slot.admit()
@@ -137,7 +145,7 @@ class InferenceService:
             raise HTTPException(
                 503, f"{self.unsent.bytes} bytes of answers are still waiting for slow clients, over this "
                 f"server's limit of {self.settings.max_unsent_bytes} (ADSM_MAX_UNSENT_BYTES); retry",
-                headers=self._warming_headers(),
+                headers=warming_headers(),
             )
 
     def _check_request(self, height: int, width: int, options: MatchOptions) -> None:
@@ -147,14 +155,11 @@ class InferenceService:
                 400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
                 f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
             )
-        if options.max_disparity is not None and options.max_disparity > width:
-            # Only the model's default range is clipped to the width; an explicit one asks for the impossible.
-            raise HTTPException(
-                400, f"max_disparity {options.max_disparity} exceeds the image width {width}: at most "
-                f"{width} disparities (0..{width - 1}) fit",
-            )
-        # The matcher's rule for the range: the request's, else the model's default, clipped to the width.
-        disparities = min(options.max_disparity or int(self.manifest["disparity"]["default_max"]), width)
+        try:  # the matcher's own range rule and memory plan (service/limits.py, service/memory.py)
+            plan = self.matcher.plan(height, width, options)
+        except DisparityRangeError as error:
+            raise HTTPException(400, str(error)) from None
+        disparities = plan.disparities
         cells = height * width * disparities
         if cells > self.settings.max_cost_cells:
             raise HTTPException(
@@ -162,7 +167,6 @@ class InferenceService:
                 f"exceeds this server's limit of {self.settings.max_cost_cells} (ADSM_MAX_COST_CELLS); "
                 "lower max_disparity or send smaller images",
             )
-        plan = plan_request(height, width, disparities, self.manifest)
         if plan.peak_bytes > self.settings.max_request_bytes:
             raise HTTPException(
                 413, f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, "
@@ -207,9 +211,6 @@ class InferenceService:
             except ImageDecodeError as error:
                 raise HTTPException(415, str(error)) from None
         return images[0], images[1]
-
-    def _warming_headers(self) -> dict[str, str]:
-        return {"Retry-After": str(_WARMING_RETRY_AFTER_S)}
 
 
 def _timed_match(

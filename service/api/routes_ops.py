@@ -10,7 +10,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
 
 from service.api.errors import error_responses
-from service.api.inference import InferenceService
+from service.api.inference import InferenceService, warming_headers
 from service.api.metrics import CONTENT_TYPE
 
 STATIC_DIR = Path(__file__).with_name("static")
@@ -62,7 +62,7 @@ async def readyz(request: Request) -> JSONResponse:
         if service.draining:
             detail = "the server is shutting down"
         return JSONResponse({"status": "not ready", "detail": detail}, status_code=503,
-                            headers={"Retry-After": "5"})
+                            headers=warming_headers())
     return JSONResponse({"status": "ready", "model": service.manifest.get("name")})
 
 

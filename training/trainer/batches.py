@@ -18,11 +18,11 @@ import torch
 
 from service.datasets import StereoSample, open_dataset
 from service.datasets.readers import detect_kind
+from training.data.evaluation_only import EVALUATION_ONLY
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
 from training.data.synthetic import VALIDATION_SEED, SyntheticConfig, generate
 
 SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
-EVALUATION_ONLY = ("middlebury2003-cones",)   # real pairs kept for evaluation: never trained on
 AUGMENTATIONS = ("none", "photometric")
 # Measured (docs/training.md, "Schedule and augmentation"): 16 channels from scratch, 300 steps, same seed,
 # "none" beat "photometric" on the synthetic validation split (bad-2 28.90 vs 29.26 %) and on Cones

@@ -22,14 +22,16 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from service.datasets import open_dataset
+from service.features.defaults import RUNTIME_DEFAULTS
 from training.checkpoint import load_checkpoint, save_checkpoint
+from training.data.evaluation_only import CONES_NAME, CONES_SPEC
 from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.prefetch import StepBatches, step_batches
 from training.trainer.warm_start import warm_start
-from training.validate import CONES, DEFAULT_DEPLOY, runtime_metrics
+from training.validate import runtime_metrics
 
 SELECTION_METRIC = ("synthetic-validation", "bad2")   # best.pt: lowest synthetic bad-2 (never Cones)
 
@@ -54,7 +56,7 @@ class TrainConfig:
     label: str = "paper"                # eq. (19) on the rounded truth; "subpixel": centred on the exact one
     val_every: int = 200
     val_pairs: int = 8
-    cones: str = CONES                  # evaluation only; "" skips it
+    cones: str = CONES_SPEC             # evaluation only; "" skips it
     out: str = "runs/train"
     threads: int | None = None
     device: str = "cpu"                 # "cuda[:N]" trains on a GPU; validation stays in the runtime
@@ -121,7 +123,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         _truncate_history(history, step)
     validation = open_dataset(f"synthetic:{config.val_pairs}")
     cones = open_dataset(config.cones) if config.cones and rank == 0 else None
-    deploy = {**DEFAULT_DEPLOY, "default_max": 128, "trained_range": data.trained_range}
+    deploy = RUNTIME_DEFAULTS.deploy({"trained_range": data.trained_range})
 
     started = time.perf_counter()
     bar = tqdm(total=config.iterations, initial=step, disable=rank != 0, dynamic_ncols=True, mininterval=5)
@@ -159,7 +161,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
             if rank == 0:
                 metrics = {"synthetic-validation": runtime_metrics(model, validation, deploy=deploy)}
                 if cones is not None:
-                    metrics["middlebury2003-cones"] = runtime_metrics(model, cones, deploy=deploy)
+                    metrics[CONES_NAME] = runtime_metrics(model, cones, deploy=deploy)
                 score = metrics[SELECTION_METRIC[0]][SELECTION_METRIC[1]]
                 improved = best is None or score < best
                 best = score if improved else best
@@ -169,7 +171,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
                     log.write(json.dumps({"step": step, "wall_time_s": round(wall, 1), **metrics}) + "\n")
                 bar.write(f"step {step}: synthetic bad-2 {score:.2f} % "
                           f"(best {best:.2f}), cones bad-2 "
-                          f"{metrics.get('middlebury2003-cones', {}).get('bad2')}")
+                          f"{metrics.get(CONES_NAME, {}).get('bad2')}")
             if world > 1:
                 dist.barrier()
     bar.close()
