@@ -74,16 +74,23 @@ def test_evaluation_pair_is_refused_as_training_data():
         TrainingData("synthetic", seed=100, spec=BatchSpec())
 
 
-def test_a_few_dense_iterations_learn_and_write_checkpoints(tmp_path):
+def test_a_few_dense_iterations_learn_and_write_checkpoints(tmp_path, monkeypatch):
+    # Every step trains on the same batch (examples 0 and 1), so a falling loss is descent, not the luck
+    # of easier crops. Measured (lr 3e-3): 10.85 6.31 4.66 4.55 4.52 4.50 4.48 4.46 4.44 4.41, falling
+    # at every step; on changing batches the same run logged 10.85 5.78 5.00 4.74 4.59 4.57.
+    data = TrainingData("synthetic", seed=0, spec=BatchSpec(height=48, width=96, max_disparity=24))
+    fixed = data.crops([0, 1])
+    monkeypatch.setattr(TrainingData, "crops", lambda self, indices: fixed)
     out = tmp_path / "run"
-    summary = train(TrainConfig(**TINY, iterations=6, val_every=6, lr=3e-3, out=str(out)))
-    assert summary["steps"] == 6
+    summary = train(TrainConfig(**TINY, iterations=10, val_every=10, lr=3e-3, out=str(out)))
+    assert summary["steps"] == 10
     losses = [row["loss"] for row in history(out)]
-    assert len(losses) == 6 and all(np.isfinite(losses))
-    assert min(losses[3:]) < losses[0]          # it learns: a random network starts near log(201)
+    assert len(losses) == 10 and all(np.isfinite(losses))
+    assert all(later < earlier for earlier, later in itertools.pairwise(losses)), losses
+    assert losses[-1] < 0.5 * losses[0], losses
     best = load_checkpoint(out / "best.pt")
     last = load_checkpoint(out / "last.pt")
-    assert last.step == 6 and last.training["iterations"] == 6 and "finished" in last.training
+    assert last.step == 10 and last.training["iterations"] == 10 and "finished" in last.training
     assert last.deploy["trained_range"] == [0, 24]
     assert set(best.metrics["synthetic-validation"]) >= {"bad2", "bad3", "bad4", "bad5", "epe"}
     assert last.optimizer is not None and last.rng is not None
