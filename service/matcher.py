@@ -31,7 +31,7 @@ from service.features import FeatureTowers, default_model_dir
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
-from service.limits import SearchRange, search_range
+from service.limits import LimitError, SearchRange, search_range
 from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, PATHS, aggregate
 from service.refinement import refine_subpixel
@@ -43,7 +43,7 @@ __all__ = ["MatchOptions", "Matcher", "MemoryLimitError", "StereoResult", "Valid
 logger = logging.getLogger("adsm")
 
 
-class MemoryLimitError(ValueError):
+class MemoryLimitError(LimitError):
     """The request's memory plan (service.memory) is over the matcher's limit; nothing was allocated."""
 
 
@@ -96,17 +96,27 @@ class StereoResult:
     confidence: np.ndarray | None = None  # float32 HxW in [0, 1] with MatchOptions(confidence=True)
 
 
-def _check_images(left: Any, right: Any) -> None:
+def _colour_images(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Both images as uint8 (H, W, 3); grey (H, W) or (H, W, 1) arrays are expanded to three channels."""
+    images = []
     for side, image in (("left", left), ("right", right)):
-        expected = f"{side} image must be a uint8 array of shape (H, W, 3)"
+        expected = f"{side} image must be a uint8 array of shape (H, W, 3), or (H, W) for grey"
         if not isinstance(image, np.ndarray):
             raise ValueError(f"{expected}, got {type(image).__name__}")
-        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
-            raise ValueError(f"{expected}, got {image.dtype} {image.shape}")
+        grey = image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 1)
+        if image.dtype != np.uint8 or not (grey or (image.ndim == 3 and image.shape[2] == 3)):
+            hint = " (scale 16-bit samples to 0..255 first: service.io.read_image does)" if (
+                image.dtype == np.uint16) else ""
+            raise ValueError(f"{expected}, got {image.dtype} {image.shape}{hint}")
         if image.shape[0] < 1 or image.shape[1] < 1:
             raise ValueError(f"{side} image is empty: shape {image.shape}")
+        if grey:
+            image = np.repeat(image.reshape(*image.shape[:2], 1), 3, axis=2)
+        images.append(image)
+    left, right = images
     if left.shape != right.shape:
         raise ValueError(f"left and right images differ in size: {left.shape[:2]} vs {right.shape[:2]}")
+    return left, right
 
 
 class Matcher:
@@ -216,13 +226,23 @@ class Matcher:
         return plan
 
     def __call__(
-        self, left: np.ndarray, right: np.ndarray, options: MatchOptions | None = None
+        self, left: np.ndarray, right: np.ndarray, options: MatchOptions | None = None, **settings: Any
     ) -> StereoResult:
-        """Disparity of the left view of a rectified pair (uint8 HxWx3 each, same shape)."""
+        """Disparity of the left view of a rectified pair (uint8 HxWx3 or HxW grey each, same size).
+
+        Options come as a :class:`MatchOptions`, as keywords (``matcher(left, right, max_disparity=64)``),
+        or both (the keywords replace the object's fields).
+        """
         options = MatchOptions() if options is None else options
         if not isinstance(options, MatchOptions):
             raise ValueError(f"options must be MatchOptions, got {type(options).__name__}")
-        _check_images(left, right)
+        if settings:
+            unknown = sorted(set(settings) - {field.name for field in dataclasses.fields(MatchOptions)})
+            if unknown:
+                raise ValueError(f"unknown match option {unknown[0]!r}; MatchOptions has "
+                                 + ", ".join(field.name for field in dataclasses.fields(MatchOptions)))
+            options = dataclasses.replace(options, **settings)
+        left, right = _colour_images(left, right)
         width = left.shape[1]
         disparities = self.check_memory(left.shape[0], width, options).disparities
         offset = options.min_disparity

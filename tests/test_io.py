@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import struct
+import zlib
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from service.io import (
     media_type,
     read_disparity,
     read_image,
+    read_pair,
     write_disparity,
 )
 from service.io.colormap import TURBO
@@ -61,16 +63,56 @@ def test_grey_expanded_to_three_channels(fmt):
 
 
 @pytest.mark.parametrize("fmt", ["PNG", "TIFF"])
-def test_sixteen_bit_grey_keeps_high_byte(fmt):
+def test_sixteen_bit_grey_using_all_sixteen_bits_is_scaled_by_65535(fmt):
     samples = np.array([[0, 255, 256, 511], [32768, 40000, 65280, 65535]], np.uint16)
     decoded = read_image(_encode(Image.fromarray(samples), fmt))
-    np.testing.assert_array_equal(decoded[:, :, 1], (samples >> 8).astype(np.uint8))
+    np.testing.assert_array_equal(decoded[:, :, 1], np.rint(samples * 255.0 / 65535).astype(np.uint8))
+    assert np.abs(decoded[:, :, 1].astype(int) - (samples >> 8)).max() <= 1  # as the high byte, rounded
+
+
+def _png_with_sbit(samples: np.ndarray, bits: int) -> bytes:
+    """A 16-bit grey PNG of ``samples`` with an sBIT chunk (Pillow writes none) inserted after IHDR."""
+    encoded = _encode(Image.fromarray(samples), "PNG")
+    body = bytes([bits])
+    chunk = len(body).to_bytes(4, "big") + b"sBIT" + body + zlib.crc32(b"sBIT" + body).to_bytes(4, "big")
+    return encoded[:33] + chunk + encoded[33:]
+
+
+@pytest.mark.parametrize("fmt", ["PNG", "TIFF"])
+def test_twelve_bit_grey_keeps_its_levels(fmt):
+    ramp = np.tile(np.arange(0, 4096, 8, dtype=np.uint16), (4, 1))  # Mono12 in a 16-bit file
+    grey = read_image(_encode(Image.fromarray(ramp), fmt))[:, :, 0]
+    np.testing.assert_array_equal(grey[0], np.rint(ramp[0] * 255.0 / 4095).astype(np.uint8))
+    assert grey[0, -1] == 255 and len(np.unique(grey)) > 200  # >> 8 left 16 levels
+
+
+def test_sbit_chunk_names_the_depth_and_a_pair_shares_one():
+    dark = np.array([[0, 1000, 2000]], np.uint16)  # 11 bits used of a 12-bit sensor
+    assert read_image(_png_with_sbit(dark, 12))[0, :, 0].tolist() == [0, 62, 125]  # x 255 / 4095
+    assert read_image(_encode(Image.fromarray(dark), "PNG"))[0, :, 0].tolist() == [0, 125, 249]  # / 2047
+    bright = np.array([[0, 1000, 4000]], np.uint16)
+    left, right = read_pair(_encode(Image.fromarray(dark), "PNG"), _encode(Image.fromarray(bright), "PNG"))
+    assert left[0, 1, 0] == right[0, 1, 0] == 62  # both / 4095: equal samples stay equal levels
+
+
+def test_sixteen_bit_colour_png_is_refused():
+    raw = b"".join(b"\0" + np.full((8, 3), 1000, ">u2").tobytes() for _ in range(8))
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return len(body).to_bytes(4, "big") + kind + body + zlib.crc32(kind + body).to_bytes(4, "big")
+
+    ihdr = (8).to_bytes(4, "big") * 2 + bytes([16, 2, 0, 0, 0])
+    rgb16 = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw))
+             + chunk(b"IEND", b""))
+    with pytest.raises(ImageDecodeError, match="16-bit colour PNG would lose precision"):
+        read_image(rgb16, name="left")
 
 
 def test_sixteen_bit_pgm_scaled_not_clipped():
     samples = np.array([[65535, 256, 1000, 0]], ">u2")
     pgm = b"P5\n4 1\n65535\n" + samples.tobytes()
-    np.testing.assert_array_equal(read_image(pgm)[0, :, 0], [255, 1, 3, 0])
+    # Pillow scales maxval to 16 bits; the samples use all 16, so / 65535 (rounded).
+    np.testing.assert_array_equal(read_image(pgm)[0, :, 0], [255, 1, 4, 0])
 
 
 def test_sixteen_bit_rgb_ppm_scaled_not_clipped():

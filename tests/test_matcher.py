@@ -101,7 +101,8 @@ def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:
     ("left", "right", "message"),
     [
         (np.zeros((8, 8, 3), np.float32), np.zeros((8, 8, 3), np.uint8), "left image must be a uint8"),
-        (np.zeros((8, 8), np.uint8), np.zeros((8, 8), np.uint8), "shape"),
+        (np.zeros((8, 8), np.uint16), np.zeros((8, 8), np.uint16), "scale 16-bit samples"),
+        (np.zeros((8, 8, 2), np.uint8), np.zeros((8, 8, 2), np.uint8), "shape"),
         (np.zeros((8, 8, 4), np.uint8), np.zeros((8, 8, 4), np.uint8), "shape"),
         (np.zeros((8, 8, 3), np.uint8), [[0]], "right image"),
         (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8), "differ in size"),

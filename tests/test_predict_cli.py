@@ -223,14 +223,24 @@ def test_many_pairs_one_process(capsys, pair, tmp_path):
 
 
 def test_twelve_bit_grey_png_keeps_its_levels(capsys, tmp_path):
-    from service.cli.predict import _read
+    # The CLI reads through the shared reader (service.io.read_pair, tested in tests/test_io.py); here the
+    # matched pair must be the one read_pair decodes, and a 16-bit colour PNG one line.
+    from service.io import read_pair
+    from service.matcher import Matcher, MatchOptions
 
-    ramp = np.tile(np.arange(0, 4096, 8, dtype=np.uint16), (4, 1))  # 12-bit samples in a 16-bit PNG
-    Image.fromarray(ramp).save(tmp_path / "mono12.png")
-    grey = _read(tmp_path / "mono12.png", "left")
-    assert grey.shape == (4, 512, 3) and grey.dtype == np.uint8
-    assert grey[0, -1, 0] == 255 and len(np.unique(grey)) > 200  # was 16 levels (>> 8)
-    rgb16 = tmp_path / "rgb16.png"
+    rng = np.random.default_rng(3)
+    texture = rng.integers(0, 4096, (40, 88), dtype=np.uint16)  # 12-bit samples in 16-bit PNGs
+    Image.fromarray(np.ascontiguousarray(texture[:, 4:])).save(tmp_path / "l12.png")
+    Image.fromarray(np.ascontiguousarray(texture[:, :-4])).save(tmp_path / "r12.png")
+    left, right = read_pair(tmp_path / "l12.png", tmp_path / "r12.png")
+    assert left.max() > 240 and len(np.unique(left)) > 200  # >> 8 left 16 levels
+    code, _, err = _run(capsys, str(tmp_path / "l12.png"), str(tmp_path / "r12.png"), "-o",
+                        str(tmp_path / "d.npy"), "--max-disparity", "16", "--model", str(SHIPPED),
+                        "--no-check")
+    assert code == 0, err
+    expected = Matcher.from_folder(SHIPPED)(left, right, MatchOptions(max_disparity=16)).disparity
+    np.testing.assert_array_equal(np.load(tmp_path / "d.npy"), expected)
+
     import zlib as _zlib
 
     raw = b"".join(b"\0" + np.full((8, 3), 1000, ">u2").tobytes() for _ in range(8))
@@ -240,10 +250,12 @@ def test_twelve_bit_grey_png_keeps_its_levels(capsys, tmp_path):
                 + _zlib.crc32(kind + body).to_bytes(4, "big"))
 
     ihdr = (8).to_bytes(4, "big") * 2 + bytes([16, 2, 0, 0, 0])
+    rgb16 = tmp_path / "rgb16.png"
     rgb16.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", _zlib.compress(raw))
                       + chunk(b"IEND", b""))
-    with pytest.raises(ValueError, match="16-bit colour PNG would lose precision"):
-        _read(rgb16, "left")
+    code, _, err = _run(capsys, str(rgb16), str(rgb16), "-o", str(tmp_path / "d.png"), "--model",
+                        str(SHIPPED))
+    _assert_one_line_error(code, err, "16-bit colour PNG would lose precision")
 
 
 def test_swapped_pair_warns_and_exits_zero(capsys, tmp_path, cones_dir):

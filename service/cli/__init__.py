@@ -15,6 +15,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="adsm", description="ADSM stereo: rectified stereo pair -> dense disparity, depth, point cloud."
     )
+    parser.add_argument("--version", action="version", version=_version())
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in _SUBCOMMANDS:
         try:
@@ -25,6 +26,20 @@ def build_parser() -> argparse.ArgumentParser:
             raise
         module.add_parser(subparsers)
     return parser
+
+
+def _version() -> str:
+    """``adsm 0.1.0 (default model adsm-fast-int8)``: the package and the model a bare command uses, read
+    without importing the runtime (a version query must not pay for ONNX Runtime or Numba)."""
+    from importlib.resources import files
+
+    from service import __version__
+
+    try:
+        model = files("service").joinpath("models", "DEFAULT").read_text(encoding="utf-8").strip()
+    except OSError:
+        model = "unknown"
+    return f"adsm {__version__} (default model {model})"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

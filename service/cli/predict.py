@@ -18,9 +18,11 @@ stderr; a pair that fails is reported and skipped, the others are still written,
 
 The format follows OUT's extension (.png -> png16, .npy, .pfm) unless --format says otherwise;
 --timings prints the stage timings (seconds) as one JSON line on stderr per pair, so stdout stays clean
-for scripts. Every expected failure (missing file, undecodable image, sizes differ, bad model folder,
-bad calibration, a pair whose memory plan is over --max-memory-mib) ends with one line
-``adsm: error: ...`` and exit status 1, never a traceback. Warnings (a pair that looks swapped or
+for scripts. A pair must pass the server's rules (service/limits.py: search range, pixels, cost cells,
+memory plan; the limits are the server's defaults, its ADSM_* variables, or the flags), checked on the
+image headers before anything is decoded or allocated. Every expected failure (missing file,
+undecodable image, sizes differ, bad model folder, bad calibration, a pair over a limit) ends with one
+line ``adsm: error: ...`` and exit status 1, never a traceback. Warnings (a pair that looks swapped or
 unrectified, few pixels passing the check) are ``adsm: warning: ...`` lines; they do not change the
 exit status.
 """
@@ -33,16 +35,15 @@ import json
 import math
 import sys
 import time
-import zlib
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
 from service.cli.match_flags import add_match_flags, match_options
-from service.features import ModelError
-from service.io import ALLOWED_FORMATS, FORMATS, format_for_path, image_size, read_image, write_disparity
-from service.memory import DEFAULT_MAX_REQUEST_BYTES
+from service.features import ModelError, default_model_dir, load_manifest
+from service.io import FORMATS, format_for_path, image_size, read_pair, write_disparity
+from service.limits import ENVIRONMENT, RequestLimits, check_request
 
 _EXTENSION = {"png16": ".png", "npy": ".npy", "pfm": ".pfm", "color": ".png"}
 _LAYOUTS = (("left", "right"), ("image_2", "image_3"), ("image_02/data", "image_03/data"))
@@ -90,9 +91,20 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="depth and points only where the disparity was measured (not filled)")
     add("--no-check", action="store_true", help="skip the swapped/unrectified pair diagnostics")
     add("--threads", type=int, metavar="N", help="ONNX Runtime threads (default: the available CPUs)")
-    add("--max-memory-mib", type=int, default=DEFAULT_MAX_REQUEST_BYTES // 2**20, metavar="MIB",
-        help="refuse a pair whose memory plan (images, features, tower tiles, cost volumes, results) "
-        "needs more (default %(default)s)")
+    limits = parser.add_argument_group(
+        "limits", "the server's limits and ADSM_* variables (service/limits.py); a pair over one is refused "
+        "before anything is decoded or allocated")
+    defaults = RequestLimits()
+    limits.add_argument("--max-pixels", type=int, metavar="N",
+                        help=f"pixels per image (default $ADSM_MAX_PIXELS or {defaults.max_pixels})")
+    limits.add_argument("--max-cost-cells", type=int, metavar="N", help="height x width x disparities "
+                        f"(default $ADSM_MAX_COST_CELLS or {defaults.max_cost_cells})")
+    limits.add_argument("--disparity-limit", type=int, metavar="N", help="largest --max-disparity accepted "
+                        f"(default $ADSM_MAX_DISPARITY or {defaults.max_disparity})")
+    limits.add_argument("--max-memory-mib", type=int, metavar="MIB",
+                        help="peak memory of a pair by its plan (images, features, tower tiles, cost "
+                        "volumes, results; default $ADSM_MAX_REQUEST_BYTES or "
+                        f"{defaults.max_request_bytes // 2**20})")
     add("--timings", action="store_true", help="print stage timings (seconds) as one JSON line on stderr")
     parser.set_defaults(func=run)
 
@@ -117,18 +129,42 @@ class _Targets:
         return Path(template.replace("{name}", name))
 
 
+# RequestLimits field -> the flag of this command that sets it (the ADSM_* variable does too).
+_LIMIT_FLAGS = {"max_pixels": "--max-pixels", "max_disparity": "--disparity-limit",
+                "max_cost_cells": "--max-cost-cells", "max_request_bytes": "--max-memory-mib"}
+
+
+def _limits(args: argparse.Namespace) -> RequestLimits:
+    """The server's limits, replaced by the ADSM_* variables that are set, then by the flags."""
+    for flag in _LIMIT_FLAGS.values():
+        value = getattr(args, flag[2:].replace("-", "_"))
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} must be >= 1, got {value}")
+    mib = args.max_memory_mib
+    return RequestLimits.from_env(
+        max_pixels=args.max_pixels, max_disparity=args.disparity_limit, max_cost_cells=args.max_cost_cells,
+        max_request_bytes=None if mib is None else mib * 2**20,
+        how={field: f"{flag} or {ENVIRONMENT[field]}" for field, flag in _LIMIT_FLAGS.items()},
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     pairs, batch = _pairs(args)
     targets = _targets(args, batch)
-    if args.max_memory_mib < 1:
-        raise ValueError(f"--max-memory-mib must be >= 1, got {args.max_memory_mib}")
+    limits = _limits(args)
     if args.max_depth is not None and not (math.isfinite(args.max_depth) and args.max_depth > 0):
         raise ValueError(f"--max-depth must be a positive number of metres, got {args.max_depth}")
     if (targets.depth or targets.pointcloud) and args.calib is None:
         raise ValueError("--depth and --pointcloud need --calib FILE (focal length and baseline)")
-    if not batch:
-        _check_sizes(pairs[0])  # refuse before the model loads, from the headers alone
+    try:
+        manifest = load_manifest(args.model if args.model is not None else default_model_dir())
+    except ModelError as error:
+        print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
+        return 1
+    options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
+    if not batch:  # refuse before the model loads, from the headers alone
+        _check_request(pairs[0], manifest, limits, options)
 
     calibration = None
     if args.calib is not None:
@@ -143,14 +179,13 @@ def run(args: argparse.Namespace) -> int:
     from service.matcher import Matcher
 
     try:
-        matcher = Matcher.from_folder(
-            args.model, threads=args.threads, max_request_bytes=args.max_memory_mib * 2**20
-        )
+        matcher = Matcher.from_folder(args.model, threads=args.threads,
+                                      max_request_bytes=limits.max_request_bytes)
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
-    options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
-    runner = _Runner(args, matcher, options, targets, calibration, loaded=time.perf_counter() - started)
+    runner = _Runner(args, matcher, options, targets, calibration, limits,
+                     loaded=time.perf_counter() - started)
     if not batch:
         runner.one(pairs[0])
         return 0
@@ -160,19 +195,20 @@ def run(args: argparse.Namespace) -> int:
 class _Runner:
     """Runs pairs through one loaded matcher and writes their files."""
 
-    def __init__(self, args, matcher, options, targets: _Targets, calibration, *, loaded: float) -> None:
+    def __init__(self, args, matcher, options, targets: _Targets, calibration, limits: RequestLimits, *,
+                 loaded: float) -> None:
         self.args, self.matcher, self.options, self.targets = args, matcher, options, targets
         self.calibration = calibration
+        self.limits = limits
         self.rectifier = None
         self.load_seconds = loaded
         self._calibrations: dict[tuple[int, int], object] = {}
 
     def one(self, pair: _Pair) -> None:
         begun = time.perf_counter()
-        size = _check_sizes(pair)
-        self.matcher.check_memory(*size, self.options)  # MemoryLimitError (a ValueError): one line, exit 1
-        left = _read(pair.left, "left")
-        right = _read(pair.right, "right")
+        size = _check_request(pair, self.matcher.manifest, self.limits, self.options)
+        left, right = read_pair(pair.left, pair.right, names=(f"left image {str(pair.left)!r}",
+                                                               f"right image {str(pair.right)!r}"))
         calibration = self._calibration_for(size)
         if calibration is not None and calibration.needs_rectification:
             if self.rectifier is None:
@@ -375,6 +411,15 @@ def _targets(args: argparse.Namespace, batch: bool) -> _Targets:
     return _Targets(disparity, output_format, args.validity, args.confidence, args.depth, args.pointcloud)
 
 
+def _check_request(pair: _Pair, manifest: dict, limits: RequestLimits, options) -> tuple[int, int]:
+    """The pair's (height, width) once its headers pass every rule the server applies (service/limits.py):
+    sizes, range, pixels, cost cells, memory plan; a LimitError or DisparityRangeError otherwise."""
+    size = _check_sizes(pair)
+    check_request(*size, manifest, limits, min_disparity=options.min_disparity,
+                  max_disparity=options.max_disparity, who="adsm predict")
+    return size
+
+
 def _check_sizes(pair: _Pair) -> tuple[int, int]:
     left_size = _size(pair.left, "left")
     right_size = _size(pair.right, "right")
@@ -390,59 +435,6 @@ def _size(path: Path, side: str) -> tuple[int, int]:
     if not path.is_file():
         raise ValueError(f"{side} image {str(path)!r} does not exist or is not a file")
     return image_size(path, name=f"{side} image {str(path)!r}")
-
-
-def _read(path: Path, side: str) -> np.ndarray:
-    """uint8 HxWx3; 16-bit grey scaled by its real bit depth (sBIT chunk, else the largest sample)."""
-    if not path.is_file():
-        raise ValueError(f"{side} image {str(path)!r} does not exist or is not a file")
-    name = f"{side} image {str(path)!r}"
-    depth = _png_sample_depth(path)
-    if depth is not None and depth[0] == 16:
-        return _read_sixteen_bit(path, name, depth[1], _png_significant_bits(path))
-    return read_image(path, name=name)
-
-
-def _read_sixteen_bit(path: Path, name: str, colour_type: int, significant: int | None) -> np.ndarray:
-    if colour_type != 0:  # Pillow keeps only the high byte of 16-bit colour PNGs
-        raise ValueError(f"{name}: 16-bit colour PNG would lose precision (only its high byte is read); "
-                         "convert it to 8-bit colour or 16-bit grey")
-    image = read_image(path, name=name)  # every check and EXIF rotation of the normal path
-    del image
-    with Image.open(path, formats=ALLOWED_FORMATS) as opened:
-        samples = np.asarray(opened).astype(np.uint32)
-    top = int(samples.max())
-    bits = significant if significant is not None else max(8, top.bit_length())
-    full_scale = (1 << bits) - 1
-    grey = np.clip(np.rint(samples * (255.0 / full_scale)), 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(np.repeat(grey[:, :, None], 3, axis=2))
-
-
-def _png_sample_depth(path: Path) -> tuple[int, int] | None:
-    """(bit depth, colour type) from a PNG's IHDR, or None for any other file."""
-    with open(path, "rb") as stream:
-        head = stream.read(33)
-    if len(head) < 33 or not head.startswith(b"\x89PNG\r\n\x1a\n") or head[12:16] != b"IHDR":
-        return None
-    return head[24], head[25]
-
-
-def _png_significant_bits(path: Path) -> int | None:
-    """The grey sample's significant bits from a PNG's sBIT chunk (before IDAT), or None."""
-    with open(path, "rb") as stream:
-        stream.read(8)
-        for _ in range(64):
-            header = stream.read(8)
-            if len(header) < 8:
-                return None
-            length, kind = int.from_bytes(header[:4], "big"), header[4:]
-            if kind in (b"IDAT", b"IEND"):
-                return None
-            body = stream.read(length)
-            crc = stream.read(4)
-            if kind == b"sBIT" and len(body) >= 1 and zlib.crc32(kind + body) == int.from_bytes(crc, "big"):
-                return body[0] if 1 <= body[0] <= 16 else None
-    return None
 
 
 def _write(path: Path, writer) -> None:

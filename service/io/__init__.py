@@ -10,7 +10,14 @@ from service.io.disparity import (
     read_disparity,
     write_disparity,
 )
-from service.io.images import ALLOWED_FORMATS, ImageDecodeError, ImageTooLargeError, image_size, read_image
+from service.io.images import (
+    ALLOWED_FORMATS,
+    ImageDecodeError,
+    ImageTooLargeError,
+    image_size,
+    read_image,
+    read_pair,
+)
 
 __all__ = [
     "ALLOWED_FORMATS",
@@ -26,5 +33,6 @@ __all__ = [
     "media_type",
     "read_disparity",
     "read_image",
+    "read_pair",
     "write_disparity",
 ]
