@@ -137,6 +137,12 @@ def test_image_command_serves_from_the_venv(serve_venv: Path, tmp_path: Path) ->
         assert disparity.dtype == np.uint16 and disparity.shape == (187, 225)
         assert (disparity > 0).mean() > 0.5
         assert "sgm;dur=" in response.headers["server-timing"]
+        # /docs from the installed package's vendored Swagger UI (package data), not from a CDN.
+        docs = httpx.get(f"{base}/docs", timeout=10)
+        assert docs.status_code == 200 and "https://" not in docs.text
+        for name in ("swagger-ui-bundle.js", "swagger-ui.css", "favicon-32x32.png"):
+            asset = httpx.get(f"{base}/static/vendor/swagger-ui/{name}", timeout=10)
+            assert asset.status_code == 200 and asset.content, name
     finally:
         server.terminate()
         output = server.communicate(timeout=60)[0].decode(errors="replace")

@@ -18,7 +18,7 @@ from starlette.middleware import Middleware
 from starlette.staticfiles import StaticFiles
 
 import service
-from service.api import routes_disparity, routes_ops
+from service.api import docs_page, routes_disparity, routes_ops
 from service.api.body_timeout import BodyDeadline
 from service.api.delivery import AnswerDelivery
 from service.api.draining import install_sigterm_drain
@@ -64,6 +64,8 @@ def create_app(settings: Settings | None = None, *, matcher: Matcher | None = No
         version=service.__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
+        docs_url=None,  # served from vendored files instead of a CDN (service/api/docs_page.py)
+        redoc_url=None,
         middleware=[
             # Outermost, so that its send is the server's: every answer leaves in bounded pieces.
             Middleware(AnswerDelivery, write_timeout_s=settings.write_timeout_s, unsent=inference.unsent),
@@ -78,6 +80,7 @@ def create_app(settings: Settings | None = None, *, matcher: Matcher | None = No
     install_error_handlers(app)
     app.include_router(routes_disparity.router)
     app.include_router(routes_ops.router)
+    app.include_router(docs_page.router)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
 
