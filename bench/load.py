@@ -36,13 +36,13 @@ from pathlib import Path
 import numpy as np
 import psutil
 
-from bench.service_latency import _free_port, _multipart, _png, _wait_ready
+from bench.serving import free_port, multipart, png, wait_ready
 
 
 def textured_pair(rng: np.random.Generator, height: int, width: int, shift: int = 4) -> tuple[bytes, bytes]:
     noise = rng.integers(0, 256, (height, width + shift, 3)).astype(np.float32)
     texture = ((noise + np.roll(noise, 1, axis=0) + np.roll(noise, 1, axis=1)) / 3).astype(np.uint8)
-    return _png(np.ascontiguousarray(texture[:, :width])), _png(np.ascontiguousarray(texture[:, shift:]))
+    return png(np.ascontiguousarray(texture[:, :width])), png(np.ascontiguousarray(texture[:, shift:]))
 
 
 def post(url: str, body: bytes, content_type: str) -> tuple[int, Message, float]:
@@ -111,7 +111,7 @@ def soak(base: str, process: psutil.Process, *, warmup: int, sequential: int, se
 
     def one(size: tuple[int, int] | None = None) -> tuple[int, int, int]:
         height, width = size or (int(rng.integers(40, 200)), int(rng.integers(64, 320)))
-        body, content_type = _multipart(*textured_pair(rng, height, width))
+        body, content_type = multipart(*textured_pair(rng, height, width))
         status, _, _ = post(f"{base}/disparity?max_disparity=32", body, content_type)
         return status, height, width
 
@@ -153,7 +153,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     height, width = (int(side) for side in args.size.lower().split("x"))
 
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
     env = dict(os.environ)
     if args.threads:
@@ -163,10 +163,10 @@ def main(argv: list[str]) -> int:
     server = subprocess.Popen(command, env=env)
     report: dict = {}
     try:
-        report["ready_s"] = _wait_ready(base, server)
+        report["ready_s"] = wait_ready(base, server)
         process = psutil.Process(server.pid)
         report["rss_ready_mb"] = process.memory_info().rss / 2**20
-        body, content_type = _multipart(*textured_pair(np.random.default_rng(0), height, width))
+        body, content_type = multipart(*textured_pair(np.random.default_rng(0), height, width))
         url = f"{base}/disparity?max_disparity=32"
         report["load"] = load(url, body, content_type, clients=args.clients, duration=args.duration,
                               max_requests=args.max_requests, max_backoff=args.max_backoff)

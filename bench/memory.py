@@ -19,13 +19,14 @@ import argparse
 import io
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from bench.serving import free_port
 
 # Worst shapes at the default limits (2.1 Mpx, 1e8 cost cells, 256 disparities): every aspect ratio the
 # pixel limit admits, smallest plan first. H, W, D (0: the most the limits admit).
@@ -54,12 +55,6 @@ def _png(height: int, width: int, seed: int) -> bytes:
     return buffer.getvalue()
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def measure(shapes: list[tuple[int, int, int]], *, model: str | None = None,
             threads: int | None = None) -> dict:
     """Run ``adsm serve`` with the default limits in a child process and send it ``shapes`` in order;
@@ -73,7 +68,7 @@ def measure(shapes: list[tuple[int, int, int]], *, model: str | None = None,
     settings = Settings()
     manifest = load_manifest(model or default_model_dir())
     bound = memory_bound(manifest, max_pixels=settings.max_pixels, max_cost_cells=settings.max_cost_cells)
-    port = _free_port()
+    port = free_port()
     env = {key: value for key, value in os.environ.items()
            if not key.startswith("ADSM_") or key == "ADSM_NUMBA_CACHE_DIR"}
     command = [sys.executable, "-m", "service", "serve", "--port", str(port), "--log-level", "warning"]

@@ -11,35 +11,19 @@ server's own stage split from the Server-Timing header, as medians.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
-import secrets
-import socket
 import statistics
 import subprocess
 import sys
 import time
-import urllib.error
 import urllib.request
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
+from bench.serving import free_port, multipart, png, wait_ready
 from training.data.evaluation_only import CONES_FOLDER
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _png(image: np.ndarray) -> bytes:
-    buffer = io.BytesIO()
-    Image.fromarray(image).save(buffer, format="PNG")
-    return buffer.getvalue()
 
 
 def kitti_size_pair(height: int = 375, width: int = 1242, shift: int = 30) -> tuple[bytes, bytes]:
@@ -48,18 +32,7 @@ def kitti_size_pair(height: int = 375, width: int = 1242, shift: int = 30) -> tu
     noise = rng.integers(0, 256, (height, width + shift, 3)).astype(np.float32)
     texture = (noise + np.roll(noise, 1, axis=1) + np.roll(noise, 1, axis=0)) / 3.0
     texture = texture.astype(np.uint8)
-    return _png(np.ascontiguousarray(texture[:, :width])), _png(np.ascontiguousarray(texture[:, shift:]))
-
-
-def _multipart(left: bytes, right: bytes) -> tuple[bytes, str]:
-    boundary = secrets.token_hex(16)
-    body = b""
-    for name, data in (("left", left), ("right", right)):
-        body += (
-            f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"; filename="{name}.png"\r\n'
-            "Content-Type: image/png\r\n\r\n"
-        ).encode() + data + b"\r\n"
-    return body + f"--{boundary}--\r\n".encode(), f"multipart/form-data; boundary={boundary}"
+    return png(np.ascontiguousarray(texture[:, :width])), png(np.ascontiguousarray(texture[:, shift:]))
 
 
 def _post(url: str, body: bytes, content_type: str) -> tuple[float, dict[str, float]]:
@@ -74,19 +47,6 @@ def _post(url: str, body: bytes, content_type: str) -> tuple[float, dict[str, fl
         name, _, duration = metric.strip().partition(";dur=")
         stages[name] = float(duration) / 1000.0
     return elapsed, stages
-
-
-def _wait_ready(base: str, server: subprocess.Popen, timeout: float = 600.0) -> float:
-    started = time.perf_counter()
-    while time.perf_counter() - started < timeout:
-        if server.poll() is not None:
-            raise RuntimeError(f"adsm serve exited with code {server.returncode}")
-        try:
-            with urllib.request.urlopen(f"{base}/readyz", timeout=5):
-                return time.perf_counter() - started
-        except (urllib.error.URLError, ConnectionError):
-            time.sleep(0.2)
-    raise RuntimeError(f"adsm serve not ready after {timeout} s")
 
 
 def main(argv: list[str]) -> int:
@@ -106,7 +66,7 @@ def main(argv: list[str]) -> int:
         ),
         "synthetic 1242x375 D=128": (*kitti_size_pair(), 128),
     }
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
     env = dict(os.environ, ADSM_QUEUE_SIZE="1")
     if args.threads:
@@ -118,10 +78,10 @@ def main(argv: list[str]) -> int:
     server = subprocess.Popen(command, env=env)
     results = {}
     try:
-        ready_s = _wait_ready(base, server)
+        ready_s = wait_ready(base, server)
         print(f"server ready after {ready_s:.1f} s (model load + JIT warm-up)")
         for label, (left, right, disparities) in pairs.items():
-            body, content_type = _multipart(left, right)
+            body, content_type = multipart(left, right)
             url = f"{base}/disparity?max_disparity={disparities}&format=png16"
             _post(url, body, content_type)  # untimed: first-call effects
             runs = [_post(url, body, content_type) for _ in range(args.repeats)]

@@ -137,3 +137,33 @@ def test_pyproject_registers_the_runtimes_extension_kinds_with_the_extra_they_na
         assert needs.extra in project["optional-dependencies"]
         module = entries[kind].partition(":")[0]
         assert module.split(".")[0] in PACKAGES and (ROOT / module.replace(".", "/")).exists()
+
+
+def command_lines(package: str) -> set[str]:
+    """Modules of ``package`` that run as a program (an ``if __name__ == "__main__"`` block)."""
+    return {name for name, path in modules().items() if name.split(".")[0] == package
+            and '__name__ == "__main__"' in path.read_text(encoding="utf-8")}
+
+
+def test_nothing_imports_a_training_command_line():
+    # The trainer once validated through training/validate.py's helpers; they live in
+    # training/evaluation.py now, and a command line only parses arguments and calls library code.
+    programs = command_lines("training")
+    assert {"training.train", "training.validate"} <= programs
+    offences = [f"{module} imports {target}" for module, targets in import_graph().items()
+                for target in targets & programs]
+    assert not offences, "\n".join(offences)
+
+
+def test_no_module_imports_another_modules_private_names():
+    # A leading underscore says "not part of this module's contract"; what two modules share is public
+    # (bench/load.py once took service_latency's _free_port, _multipart, _png and _wait_ready).
+    offences = []
+    for package in (*PACKAGES, "bench"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+                if isinstance(node, ast.ImportFrom):
+                    offences += [f"{path.relative_to(ROOT)}:{node.lineno} imports {alias.name} from "
+                                 f"{node.module or '.'}" for alias in node.names
+                                 if alias.name.startswith("_") and not alias.name.startswith("__")]
+    assert not offences, "\n".join(offences)

@@ -14,12 +14,12 @@ import torch
 from service.datasets import open_dataset
 from training.checkpoint import load_checkpoint
 from training.data.evaluation_only import CONES_FOLDER as CONES
+from training.evaluation import TorchTowers, tune_sgm
 from training.networks import build_tower_pair
 from training.schedule import FLOOR_FRACTION, learning_rate
 from training.train import build_parser, main, recorded_command
 from training.trainer import BatchSpec, TrainConfig, TrainingData, train
 from training.trainer.objective import Objective
-from training.validate import TorchTowers, tune_sgm
 
 # The evaluation-only real pair, beside the checkout as in CI.
 

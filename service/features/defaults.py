@@ -1,7 +1,7 @@
 """The runtime settings a model folder's manifest carries when training and export chose none.
 
 One frozen record, so the exporter (``export/to_onnx.py``), the NCC baseline (``export/baseline.py``),
-validation through the runtime (``training/validate.py``) and a checkpoint's ``deploy`` settings
+validation through the runtime (``training/evaluation.py``) and a checkpoint's ``deploy`` settings
 (``training.checkpoint.Checkpoint.deploy_settings``) agree on every value. The manifest keys they fill are
 in ``manifest.schema.json``; the meaning of the cost scale and the penalties is in docs/architecture.md.
 """

@@ -25,13 +25,13 @@ from service.datasets import open_dataset
 from service.features.defaults import RUNTIME_DEFAULTS
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.data.evaluation_only import CONES_NAME, CONES_SPEC
+from training.evaluation import runtime_metrics
 from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.prefetch import StepBatches, step_batches
 from training.trainer.warm_start import warm_start
-from training.validate import runtime_metrics
 
 SELECTION_METRIC = ("synthetic-validation", "bad2")   # best.pt: lowest synthetic bad-2 (never Cones)
 
