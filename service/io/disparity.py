@@ -75,17 +75,21 @@ def format_for_path(path: str | Path) -> str:
 
 def read_disparity(path: str | Path) -> np.ndarray:
     """Read a png16, PFM or npy disparity map (told apart by content) as float32 with NaN invalid."""
-    data = Path(path).read_bytes()
+    return decode_disparity(Path(path).read_bytes(), source=path)
+
+
+def decode_disparity(data: bytes, *, source: str | Path = "disparity map") -> np.ndarray:
+    """:func:`read_disparity` of bytes in memory (an HTTP answer); ``source`` names them in errors."""
     if data.startswith(b"\x89PNG"):
-        return _from_png16(data, path)
+        return _from_png16(data, source)
     if data.startswith(b"\x93NUMPY"):
         values = np.load(io.BytesIO(data), allow_pickle=False)
         values = _as_disparity(values).copy()
         values[~np.isfinite(values)] = np.nan
         return values
     if data[:2] in (b"Pf", b"PF"):
-        return _read_pfm(data, path)
-    raise ValueError(f"{path}: not a png16, PFM or npy disparity map")
+        return _read_pfm(data, source)
+    raise ValueError(f"{source}: not a png16, PFM or npy disparity map")
 
 
 def _check_format(format: str) -> str:
