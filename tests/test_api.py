@@ -412,21 +412,40 @@ async def test_body_limit_while_streaming_is_413(client: httpx.AsyncClient) -> N
 
 # --- metrics (last: it checks what the tests above left behind) -------------------------------------------
 
+def metric_samples(text: str) -> dict[str, float]:
+    """``name{labels}`` -> value of every sample line of a Prometheus exposition."""
+    samples = {}
+    for line in text.splitlines():
+        if line and not line.startswith("#"):
+            name, _, value = line.rpartition(" ")
+            samples[name] = float(value)
+    return samples
+
+
 async def test_metrics_exposition(client: httpx.AsyncClient) -> None:
+    # Counted as differences around this test's own requests: the module's client is shared, and what
+    # the tests before it did (or did not do, when this test runs alone) must not matter.
+    before = metric_samples((await client.get("/metrics")).text)
+    disparity = await client.post("/disparity", params={"max_disparity": 16}, files=PAIR,
+                                  headers={"X-Request-ID": "abc-123"})
+    too_deep = await client.post("/disparity", params={"max_disparity": 17}, files=PAIR)
+    depth = await client.post("/depth", params={"focal_px": FOCAL, "baseline_m": BASELINE,
+                                                "max_disparity": 16}, files=PAIR)
+    assert (disparity.status_code, too_deep.status_code, depth.status_code) == (200, 413, 200)
     response = await client.get("/metrics")
     assert response.status_code == 200 and response.headers["content-type"].startswith("text/plain")
     text = response.text
-    for sample in (
-        'adsm_http_requests_total{method="POST",route="/disparity",status="200"}',
-        'adsm_http_requests_total{method="POST",route="/disparity",status="413"}',
-        'adsm_http_request_duration_seconds_bucket{le="+Inf",method="POST",route="/depth",status="200"}',
-        'adsm_stage_duration_seconds_count{stage="sgm"}',
-        'adsm_stage_duration_seconds_count{stage="queue"}',
-        "adsm_queue_waiting 0.0",
-        "adsm_inference_running 0.0",
-        "adsm_queue_rejections_total 0.0",
-        "adsm_ready 1.0",
+    after = metric_samples(text)
+    for sample, added in (
+        ('adsm_http_requests_total{method="POST",route="/disparity",status="200"}', 1),
+        ('adsm_http_requests_total{method="POST",route="/disparity",status="413"}', 1),
+        ('adsm_http_request_duration_seconds_bucket{le="+Inf",method="POST",route="/depth",status="200"}', 1),
+        ('adsm_stage_duration_seconds_count{stage="sgm"}', 2),
+        ('adsm_stage_duration_seconds_count{stage="queue"}', 2),
     ):
-        assert sample in text, sample
+        assert after.get(sample, 0.0) - before.get(sample, 0.0) == added, sample
+    for sample, value in (("adsm_queue_waiting", 0.0), ("adsm_inference_running", 0.0),
+                          ("adsm_queue_rejections_total", 0.0), ("adsm_ready", 1.0)):
+        assert after[sample] == value, sample
     assert "abc-123" not in text and "left.png" not in text  # no request data in labels
     assert json.dumps(load_manifest(default_model_dir())["name"]) in text  # adsm_model_info{name="..."}
