@@ -203,11 +203,14 @@ def test_random_init_export_runs_through_matcher_and_adsm_predict(tmp_path: Path
     assert code == 0 and np.load(out).shape == (40, 64)
 
 
-@pytest.mark.slow
-def test_paper_config_64_channels_matches_pytorch_at_kitti_size(tmp_path: Path) -> None:
+def test_paper_config_64_channels_matches_pytorch(tmp_path: Path) -> None:
+    # The paper's width: wide convolutions can take other ONNX Runtime kernels than the 6-channel test
+    # above. The image size changes nothing in the graph (its height and width are symbolic), so a small
+    # odd image covers what the KITTI-size run did in 43 s (this one: 11.5 s at a load average of 9 on 2
+    # cores).
     pair = _with_statistics(build_tower_pair("37-1deconv5-4conv", channels=64))
     model = tower_to_onnx(pair.right)
-    image = torch.rand(1, 3, 375, 1242)
+    image = torch.rand(1, 3, 45, 83)
     with torch.no_grad():
         expected = dense_features(pair.right, image).numpy()
     assert _relative_error(_ort_features(model, image), expected) < 1e-4
