@@ -27,7 +27,7 @@ import numpy as np
 from service import jit
 from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
-from service.features import FeatureTowers, default_model_dir
+from service.features import FeatureTowers, Towers, default_model_dir
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
@@ -120,11 +120,16 @@ def _colour_images(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Matcher:
-    """Stereo matcher of one model folder. Not thread-safe: run one call at a time per instance."""
+    """Stereo matcher of one model. Not thread-safe: run one call at a time per instance.
+
+    ``towers`` is anything that satisfies :class:`~service.features.Towers`: a folder's ONNX towers
+    (:meth:`from_folder`), or the trainer's PyTorch towers. The Matcher in turn satisfies
+    :class:`service.protocols.StereoMatcher`, what the HTTP service needs.
+    """
 
     def __init__(
         self,
-        towers: FeatureTowers,
+        towers: Towers,
         *,
         threads: int | None = None,
         reuse_volumes: bool = True,
@@ -132,7 +137,7 @@ class Matcher:
     ) -> None:
         if threads is not None and not 1 <= threads <= MAX_THREADS:
             raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {threads}")
-        self.towers = towers
+        self.towers: Towers = towers
         # None: no limit (a library caller owns its memory); the service and the CLI set one.
         self.max_request_bytes = max_request_bytes
         self.threads = threads

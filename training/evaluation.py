@@ -1,8 +1,8 @@
 """Validation through the runtime: the PyTorch towers inside the same Matcher the service deploys.
 
-:class:`TorchTowers` has the FeatureTowers interface (``manifest``, ``folder``, ``__call__``,
-``warmup``), so cost volume, SGM, sub-pixel fit, inner check and ray filling are the runtime's own code;
-only the towers run in PyTorch. The trainer validates with :func:`runtime_metrics`; :func:`tune_sgm`
+:class:`TorchTowers` satisfies :class:`service.features.Towers`, the protocol the Matcher is written
+against, so cost volume, SGM, sub-pixel fit, inner check and ray filling are the runtime's own code; only
+the towers run in PyTorch. The trainer validates with :func:`runtime_metrics`; :func:`tune_sgm`
 grids P1/P2 on the synthetic validation split (never on a real evaluation pair), running the towers once
 per pair. The command line over both is ``python -m training.validate``.
 """
@@ -19,16 +19,15 @@ import torch
 from service.datasets import StereoSample
 from service.evaluation.evaluate import evaluate
 from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
+from service.features import Towers
 from service.features.defaults import RUNTIME_DEFAULTS
 from service.matcher import Matcher
 from training.networks import TowerPair, dense_features
 
 
-class TorchTowers:
-    """PyTorch towers with the FeatureTowers interface; features of the last few pairs are cached so
-    that a P1/P2 grid runs the network once per pair."""
-
-    folder = None
+class TorchTowers(Towers):
+    """PyTorch towers as the Matcher's :class:`~service.features.Towers`; features of the last few pairs
+    are cached so that a P1/P2 grid runs the network once per pair."""
 
     def __init__(self, model: TowerPair, deploy: Mapping[str, Any] | None = None, *, cache: int = 0) -> None:
         deploy = RUNTIME_DEFAULTS.deploy(deploy)

@@ -30,7 +30,7 @@ from service.api.metrics import MetricsMiddleware
 from service.api.request_id import RequestIdMiddleware
 from service.api.routes_ops import STATIC_DIR
 from service.api.settings import Settings
-from service.matcher import Matcher
+from service.protocols import StereoMatcher
 
 logger = logging.getLogger("service.api")
 
@@ -42,9 +42,10 @@ limits, 415 for a part that is not an image, 503 + Retry-After when the queue is
 has an X-Request-ID header; stereo responses a Server-Timing header."""
 
 
-def create_app(settings: Settings | None = None, *, matcher: Matcher | None = None) -> FastAPI:
-    """Build the app. ``settings`` default to ``Settings.from_env()``; ``matcher`` replaces loading
-    ``settings.model_dir`` (for embedding and tests)."""
+def create_app(settings: Settings | None = None, *, matcher: StereoMatcher | None = None) -> FastAPI:
+    """Build the app. ``settings`` default to ``Settings.from_env()``; ``matcher`` (anything that satisfies
+    :class:`service.protocols.StereoMatcher`) replaces loading ``settings.model_dir`` (for embedding and
+    tests)."""
     settings = Settings.from_env() if settings is None else settings
     inference = InferenceService(settings, matcher=matcher)
 

@@ -30,6 +30,7 @@ from service.io import ImageDecodeError, ImageTooLargeError, image_size, read_im
 from service.limits import DisparityRangeError
 from service.matcher import Matcher, MatchOptions, StereoResult
 from service.memory import TOWER_WORK_FACTOR, tower_work_limit
+from service.protocols import StereoMatcher
 
 logger = logging.getLogger("service.api")
 
@@ -54,11 +55,11 @@ class StereoMatch:
 class InferenceService:
     """Owns the matcher and the slot; ``ready`` turns True once the model is loaded and warmed."""
 
-    def __init__(self, settings: Settings, *, matcher: Matcher | None = None) -> None:
+    def __init__(self, settings: Settings, *, matcher: StereoMatcher | None = None) -> None:
         self.settings = settings
         self.slot = InferenceSlot(queue_size=settings.queue_size)
         self.metrics = ServiceMetrics(self.slot)
-        self.matcher = matcher
+        self.matcher: StereoMatcher | None = matcher
         self.ready = False
         self.failure: str | None = None
         self.draining = False  # SIGTERM received: admitted requests finish, new ones get 503
@@ -214,7 +215,7 @@ class InferenceService:
 
 
 def _timed_match(
-    matcher: Matcher, left: np.ndarray, right: np.ndarray, options: MatchOptions
+    matcher: StereoMatcher, left: np.ndarray, right: np.ndarray, options: MatchOptions
 ) -> tuple[float, StereoResult]:
     began = time.perf_counter()  # when the slot was won: the queue wait ends here
     return began, matcher(left, right, options)

@@ -1,4 +1,5 @@
-"""Feature towers (left.onnx, right.onnx) and the model folder manifest that describes them."""
+"""Feature towers (left.onnx, right.onnx), the model folder manifest that describes them, and the
+:class:`Towers` protocol the Matcher is written against."""
 
 from service.features.manifest import (
     ModelError,
@@ -9,11 +10,13 @@ from service.features.manifest import (
     verify_files,
     write_manifest,
 )
+from service.features.protocol import Towers
 from service.features.towers import FeatureTowers
 
 __all__ = [
     "FeatureTowers",
     "ModelError",
+    "Towers",
     "default_model_dir",
     "file_entry",
     "load_manifest",
