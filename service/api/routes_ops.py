@@ -12,6 +12,7 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from service.api.errors import error_responses
 from service.api.inference import InferenceService, warming_headers
 from service.api.metrics import CONTENT_TYPE
+from service.features.card import model_card
 
 STATIC_DIR = Path(__file__).with_name("static")
 
@@ -77,6 +78,19 @@ async def metrics(request: Request) -> Response:
 )
 async def model(request: Request) -> dict[str, Any]:
     return public_manifest(_service(request).manifest)
+
+
+@router.get(
+    "/v1/model/card", tags=["model"], response_class=Response,
+    summary="The served model's card: intended use, training data and its limits, metrics, speed, licence",
+    responses={200: {"content": {"text/markdown": {}}, "description": "Markdown, generated from the "
+                     "manifest (the model folder's README.md)"}, **error_responses(503)},
+)
+async def card(request: Request) -> Response:
+    # From the manifest the service verified and serves, as /v1/model shows it (paths cut), so the card
+    # and /v1/model never disagree; the folder's README.md is the same text (tests/test_model_card.py).
+    text = model_card(public_manifest(_service(request).manifest))
+    return Response(text, media_type="text/markdown; charset=utf-8")
 
 
 @router.get("/", include_in_schema=False)

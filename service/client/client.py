@@ -100,6 +100,10 @@ class StereoClient:
         """The served model's manifest (``/v1/model``)."""
         return self._send(lambda: self._http.get("v1/model")).json()
 
+    def card(self) -> str:
+        """The served model's card, Markdown (``/v1/model/card``): intended use, training data, metrics."""
+        return self._send(lambda: self._http.get("v1/model/card")).text
+
     def ready(self) -> bool:
         """True once the service has loaded and warmed its model (``/readyz`` answers 200)."""
         try:

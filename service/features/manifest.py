@@ -17,6 +17,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
+from service.features.card import write_card
+
 SCHEMA_ID = "adsm-model/1"
 MANIFEST_NAME = "manifest.json"
 TOWER_FILES = ("left.onnx", "right.onnx")
@@ -92,7 +94,8 @@ def file_entry(path: str | Path) -> dict[str, Any]:
 
 
 def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> Path:
-    """Fill ``files`` from the tower files in ``folder``, validate, and write ``manifest.json``."""
+    """Fill ``files`` from the tower files in ``folder``, validate, and write ``manifest.json`` and the
+    folder's card (``README.md``, generated from it: service/features/card.py)."""
     folder = Path(folder)
     missing = [name for name in TOWER_FILES if not (folder / name).is_file()]
     if missing:
@@ -102,6 +105,7 @@ def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> Path:
     validate_manifest(manifest)
     path = folder / MANIFEST_NAME
     path.write_text(json.dumps(manifest, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    write_card(folder, manifest)  # whoever rewrites the figures rewrites the card: it cannot drift
     return path
 
 
