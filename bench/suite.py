@@ -19,7 +19,9 @@ import argparse
 import io
 import json
 import os
+import platform
 import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -68,6 +70,29 @@ def _compiled_signatures() -> int:
     return total
 
 
+def _machine() -> str:
+    """The CPU model and the cores this process may use: timings mean little without them."""
+    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                  if line.startswith("model name")), None) if Path("/proc/cpuinfo").is_file() else None
+    return f"{model or platform.processor() or platform.machine()}, {len(os.sched_getaffinity(0))} cores"
+
+
+def _commit() -> str | None:
+    """The checkout's commit (with '+dirty' when files differ from it), or None outside a git checkout."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True,
+                              timeout=30, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPOSITORY,
+                               capture_output=True, text=True, timeout=30, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("+dirty" if dirty else "")
+
+
+def _command(argv: list[str] | None) -> str:
+    return shlex.join(["python", "-m", "bench", "suite", *(sys.argv[1:] if argv is None else argv)])
+
+
 def measure_model(folder: Path, size: str, repeats: int, threads: int | None) -> dict[str, Any]:
     """One model at one size, in this process: medians per stage, CPU seconds, first call, peak RSS."""
     from bench import peers
@@ -106,6 +131,7 @@ def measure_model(folder: Path, size: str, repeats: int, threads: int | None) ->
     manifest = matcher.manifest
     report = {"model": manifest["name"], "folder": str(folder), "precision": manifest["onnx"]["precision"],
               "channels": manifest["channels"], "size": size, "shape": [height, width, disparities],
+              "files": manifest["files"],  # the towers' sha256: which weights these figures belong to
               "median": medians, "min_predict": min(s["predict"] for s in samples),
               "first_call_total": first["total"], "kernels_compiled_on_request": compiled_on_request,
               "sgm_ns_per_cell_per_path": medians["sgm"] / (height * width * disparities * SGM_PATHS) * 1e9}
@@ -282,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
         default = folders[0]
     started = time.perf_counter()
     report: dict[str, Any] = {"repeats": args.repeats, "threads": threads, "load_before": os.getloadavg(),
+                              "machine": _machine(), "commit": _commit(), "command": _command(argv),
                               "default_model": default.name, "models": [], "peers": []}
     common = ["--repeats", str(args.repeats)] + (["--threads", str(args.threads)] if args.threads else [])
     for size in args.sizes:
