@@ -146,3 +146,36 @@ def test_kubernetes_memory_limit_covers_the_documented_bound() -> None:
     bound = memory_bound(load_manifest(default_model_dir()), max_pixels=settings.max_pixels,
                          max_cost_cells=settings.max_cost_cells)
     assert limit_bytes >= idle + bound, (limit, (idle + bound) / 2**20)
+
+
+def test_domain_errors_map_to_one_status_each() -> None:
+    from service.api.errors import domain_error_response, status_of
+    from service.api.queue import ClientDisconnected, QueueFull
+    from service.api.refusals import Backlogged, BadRequest, Draining, NotReady
+    from service.io import ImageDecodeError, ImageTooLargeError
+    from service.limits import DisparityRangeError, LimitError
+    from service.matcher import MemoryLimitError
+
+    expected = [(BadRequest("x"), 400), (DisparityRangeError("x"), 400), (LimitError("x"), 413),
+                (MemoryLimitError("x"), 413), (ImageTooLargeError("x"), 413), (ImageDecodeError("x"), 415),
+                (ClientDisconnected("x"), 499), (QueueFull(7), 503), (NotReady("x"), 503),
+                (Draining("x"), 503), (Backlogged("x"), 503)]
+    assert [status_of(error) for error, _ in expected] == [status for _, status in expected]
+    assert status_of(ValueError("a bug")) is None  # anything unlisted stays a server error
+    full = domain_error_response(QueueFull(7))
+    assert full.status_code == 503 and full.headers["retry-after"] == "7" and "connection" not in full.headers
+    assert full.body == b'{"detail":"the inference queue is full; retry in 7 s"}'
+    leaving = domain_error_response(Draining("shutting down"))
+    assert leaving.headers["retry-after"] == "5" and leaving.headers["connection"] == "close"
+    assert "retry-after" not in domain_error_response(LimitError("too big")).headers
+
+
+def test_the_service_object_raises_no_http_errors() -> None:
+    # The service object and its queue speak in domain errors; only service/api/errors.py knows statuses.
+    import service.api.inference
+    import service.api.queue
+    import service.api.refusals
+
+    for module in (service.api.inference, service.api.queue, service.api.refusals):
+        source = Path(module.__file__).read_text(encoding="utf-8")
+        assert "HTTPException" not in source and "status_code" not in source, module.__name__

@@ -91,8 +91,7 @@ def test_cli_and_server_refuse_the_same_requests(default_matcher, height, width,
                                                  settings) -> None:
     """Pins service.limits.check_request (the CLI's) to the server's own check until the routes call it:
     the same requests pass, and refusals map to the same status (range 400, size 413)."""
-    from fastapi import HTTPException
-
+    from service.api.errors import status_of
     from service.api.inference import InferenceService
     from service.api.settings import Settings
 
@@ -102,8 +101,8 @@ def test_cli_and_server_refuse_the_same_requests(default_matcher, height, width,
     try:
         server._check_request(height, width, options)
         status = 200
-    except HTTPException as error:
-        status = error.status_code
+    except ValueError as error:  # a domain error; the status the server answers it with
+        status = status_of(error)
     try:
         check_request(height, width, manifest, RequestLimits(**settings), max_disparity=max_disparity)
         ours = 200

@@ -13,6 +13,9 @@ The rule (documented in the OpenAPI schema and docs/service.md):
   image headers.
 - 415: a part that is not a decodable image.
 - 503 + Retry-After: the inference queue is full, or the model is still warming up.
+
+The service object raises domain errors (service/api/refusals.py, the queue's, the runtime's), never
+HTTP ones; :data:`STATUS_OF` is the one table that turns each into its status code.
 """
 
 from __future__ import annotations
@@ -24,6 +27,22 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel
+
+from service.api.refusals import BadRequest, ClientGone, Unavailable
+from service.io import ImageDecodeError, ImageTooLargeError
+from service.limits import DisparityRangeError, LimitError
+
+# Domain error -> status. A subclass not listed takes its nearest listed ancestor's status (the handlers
+# are looked up along the class's MRO), so ImageTooLargeError is 413 although it is an ImageDecodeError.
+STATUS_OF: dict[type[Exception], int] = {
+    BadRequest: 400,            # malformed multipart, images of different sizes, options refused
+    DisparityRangeError: 400,   # a range this image or this server's ADSM_MAX_DISPARITY cannot take
+    LimitError: 413,            # cost-volume cells, memory plan, tower work
+    ImageTooLargeError: 413,    # pixels, read from the header before decoding
+    ImageDecodeError: 415,      # a part that is not a decodable image
+    ClientGone: 499,            # nginx's "client closed request" (queue.ClientDisconnected too)
+    Unavailable: 503,           # not ready, draining, answers backlogged, queue.QueueFull: + Retry-After
+}
 
 
 class ErrorBody(BaseModel):
@@ -59,8 +78,33 @@ async def validation_error_handler(request: Request, error: RequestValidationErr
     return JSONResponse({"detail": detail or "invalid request", "errors": problems}, status_code=400)
 
 
+def status_of(error: BaseException) -> int | None:
+    """The status :data:`STATUS_OF` gives ``error`` (its nearest listed class), None for any other error."""
+    return next((STATUS_OF[kind] for kind in type(error).__mro__ if kind in STATUS_OF), None)
+
+
+def domain_error_response(error: Exception) -> JSONResponse:
+    """The answer to a domain error: its message as ``detail``, its status, and for an Unavailable the
+    Retry-After (and Connection: close when the process is leaving)."""
+    headers = None
+    if isinstance(error, Unavailable):
+        headers = {"Retry-After": str(error.retry_after)}
+        if error.close_connection:
+            headers["Connection"] = "close"
+    status = status_of(error)
+    if status is None:
+        raise TypeError(f"{type(error).__name__} has no status in STATUS_OF") from error
+    return JSONResponse({"detail": str(error)}, status_code=status, headers=headers)
+
+
+async def domain_error_handler(request: Request, error: Exception) -> JSONResponse:
+    return domain_error_response(error)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, validation_error_handler)
+    for kind in STATUS_OF:
+        app.add_exception_handler(kind, domain_error_handler)
     app.openapi = lambda: _openapi_without_422(app)  # type: ignore[method-assign]
 
 

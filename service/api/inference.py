@@ -1,11 +1,15 @@
 """The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
 
-Pipeline of a stereo request: admission (503 at once when the queue is full) -> multipart body (408
+Pipeline of a stereo request: admission (QueueFull at once when the queue is full) -> multipart body (408
 when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/body_timeout.py) -> both image headers:
 sizes, pixel limit, then the request's memory plan (service/memory.py) against ADSM_MAX_REQUEST_BYTES
 and its tower work against ADSM_MAX_PIXELS, all before a pixel is decoded -> decode both images in a
 thread -> wait for the inference slot -> match in a thread -> the route encodes. Each step's seconds go
 into the Server-Timing header and the per-stage histogram.
+
+A refused request raises a domain error, never an HTTP one: this module's and the queue's
+(service/api/refusals.py), the runtime's (DisparityRangeError, LimitError, ImageDecodeError,
+ImageTooLargeError); service/api/errors.py maps each to its status code and headers.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ import time
 from typing import Any
 
 import numpy as np
-from fastapi import HTTPException, Request
+from fastapi import Request
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
@@ -24,23 +28,27 @@ from starlette.requests import ClientDisconnect
 from service import jit
 from service.api.delivery import Unsent
 from service.api.metrics import ServiceMetrics
-from service.api.queue import ClientDisconnected, InferenceSlot, QueueFull
+from service.api.queue import InferenceSlot, QueueFull
+from service.api.refusals import (
+    WARMING_RETRY_AFTER_S,
+    Backlogged,
+    BadRequest,
+    ClientGone,
+    Draining,
+    NotReady,
+)
 from service.api.settings import Settings
-from service.io import ImageDecodeError, ImageTooLargeError, image_size, read_image
-from service.limits import DisparityRangeError
+from service.io import image_size, read_image
+from service.limits import DisparityRangeError, LimitError
 from service.matcher import Matcher, MatchOptions, StereoResult
 from service.memory import TOWER_WORK_FACTOR, tower_work_limit
 from service.protocols import StereoMatcher
 
 logger = logging.getLogger("service.api")
 
-# Seconds to wait after a 503 whose end the server cannot estimate (loading, warming up, draining, too many
-# unsent answers); a full queue estimates its own wait (queue.py).
-WARMING_RETRY_AFTER_S = 5
-
 
 def warming_headers() -> dict[str, str]:
-    """The headers of such a 503: a fixed Retry-After."""
+    """The headers of /readyz's 503 while loading or warming up: a fixed Retry-After."""
     return {"Retry-After": str(WARMING_RETRY_AFTER_S)}
 
 
@@ -68,9 +76,12 @@ class InferenceService:
 
     @property
     def manifest(self) -> dict[str, Any]:
+        return self._loaded().manifest
+
+    def _loaded(self) -> StereoMatcher:
         if self.matcher is None:
-            raise HTTPException(503, "the model is not loaded yet", headers=warming_headers())
-        return self.matcher.manifest
+            raise NotReady("the model is not loaded yet")
+        return self.matcher
 
     def load(self) -> None:
         """Load the model folder (hashes verified by the towers); raises ModelError for a bad folder."""
@@ -84,7 +95,7 @@ class InferenceService:
         """Compile every kernel and run the towers once, then declare readiness."""
         started = time.perf_counter()
         if self.settings.warmup:
-            self.matcher.warmup()
+            self._loaded().warmup()
         self.ready = True
         self.metrics.ready.set(1)
         logger.info("model warmed in %.1f s; ready", time.perf_counter() - started)
@@ -100,18 +111,15 @@ class InferenceService:
             # deadline, nothing kept), so that closing the connection after the 503 does not reset it
             # under a client still sending and lose the answer.
             await _discard_body(request)
-            raise HTTPException(
-                503, "the server is shutting down; retry (another instance may answer)",
-                headers={**warming_headers(), "Connection": "close"},
-            )
+            raise Draining("the server is shutting down; retry (another instance may answer)")
         if not self.ready:
-            raise HTTPException(503, "the model is warming up", headers=warming_headers())
+            raise NotReady("the model is warming up")
         self._check_unsent()
         try:
             admission = self.slot.admit()
-        except QueueFull as full:
+        except QueueFull:
             self.metrics.rejections.inc()
-            raise HTTPException(503, str(full), headers={"Retry-After": str(full.retry_after)}) from None
+            raise
         with admission:
             return await self._match_admitted(request, options, time.perf_counter())
 
@@ -125,93 +133,77 @@ class InferenceService:
         del left_bytes, right_bytes
         self._check_unsent()
         queued = time.perf_counter()
-        try:
+        try:  # a client that leaves while queued ends the request here (ClientGone, raised by the slot)
             began, result = await self.slot.run(
-                _timed_match, self.matcher, left, right, options, disconnected=request.is_disconnected
+                _timed_match, self._loaded(), left, right, options, disconnected=request.is_disconnected
             )
-        except ClientDisconnected:
-            # Nobody will read the answer; 499 is nginx's "client closed request", for logs and metrics.
-            raise HTTPException(499, "client disconnected while queued") from None
         except ValueError as error:  # the matcher's word on bad options for this pair
-            raise HTTPException(400, str(error)) from None
+            raise BadRequest(str(error)) from None
         timings["queue"] = began - queued
         # The matcher's own "total" is left out: the route reports the whole request's total instead.
         timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
         return StereoMatch(result=result, left=left, timings=timings, started=admitted)
 
     def _check_unsent(self) -> None:
-        """503 while slow clients leave more than ADSM_MAX_UNSENT_BYTES of answers untaken: checked on
-        admission and again before the inference, so answers made meanwhile stay within the limit."""
+        """Backlogged while slow clients leave more than ADSM_MAX_UNSENT_BYTES of answers untaken: checked
+        on admission and again before the inference, so answers made meanwhile stay within the limit."""
         if self.unsent.bytes > self.settings.max_unsent_bytes:
-            raise HTTPException(
-                503, f"{self.unsent.bytes} bytes of answers are still waiting for slow clients, over this "
-                f"server's limit of {self.settings.max_unsent_bytes} (ADSM_MAX_UNSENT_BYTES); retry",
-                headers=warming_headers(),
+            raise Backlogged(
+                f"{self.unsent.bytes} bytes of answers are still waiting for slow clients, over this "
+                f"server's limit of {self.settings.max_unsent_bytes} (ADSM_MAX_UNSENT_BYTES); retry"
             )
 
     def _check_request(self, height: int, width: int, options: MatchOptions) -> None:
-        """Every size limit of a request, from the image headers: nothing is allocated before they pass."""
+        """Every size limit of a request, from the image headers: nothing is allocated before they pass.
+        Raises DisparityRangeError for a range this server or this image cannot take, LimitError for a
+        request over a size limit."""
         if options.max_disparity is not None and options.max_disparity > self.settings.max_disparity:
-            raise HTTPException(
-                400, f"max_disparity {options.max_disparity} exceeds this server's limit of "
-                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)",
+            raise DisparityRangeError(
+                f"max_disparity {options.max_disparity} exceeds this server's limit of "
+                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)"
             )
-        try:  # the matcher's own range rule and memory plan (service/limits.py, service/memory.py)
-            plan = self.matcher.plan(height, width, options)
-        except DisparityRangeError as error:
-            raise HTTPException(400, str(error)) from None
+        # The matcher's own range rule and memory plan (service/limits.py, service/memory.py).
+        plan = self._loaded().plan(height, width, options)
         disparities = plan.disparities
         cells = height * width * disparities
         if cells > self.settings.max_cost_cells:
-            raise HTTPException(
-                413, f"{width} x {height} pixels x {disparities} disparities = {cells} cost-volume cells "
+            raise LimitError(
+                f"{width} x {height} pixels x {disparities} disparities = {cells} cost-volume cells "
                 f"exceeds this server's limit of {self.settings.max_cost_cells} (ADSM_MAX_COST_CELLS); "
-                "lower max_disparity or send smaller images",
+                "lower max_disparity or send smaller images"
             )
         if plan.peak_bytes > self.settings.max_request_bytes:
-            raise HTTPException(
-                413, f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, "
+            raise LimitError(
+                f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, "
                 f"over this server's limit of {self.settings.max_request_bytes} bytes per request "
-                "(ADSM_MAX_REQUEST_BYTES); send smaller images or lower max_disparity",
+                "(ADSM_MAX_REQUEST_BYTES); send smaller images or lower max_disparity"
             )
         work_limit = tower_work_limit(self.manifest, max_pixels=self.settings.max_pixels)
         if plan.work_pixels > work_limit:
-            raise HTTPException(
-                413, f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
+            raise LimitError(
+                f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
                 f"pixels (each side is padded by half the receptive field), over this server's limit of "
                 f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of ADSM_MAX_PIXELS); "
                 "images only a few pixels tall or wide cost far more than their size: send a less "
-                "elongated image",
+                "elongated image"
             )
 
     def _pair_size(self, left_bytes: bytes, right_bytes: bytes) -> tuple[int, int]:
-        """The pair's (height, width) from the headers; 400 when the two differ."""
-        sizes = []
-        for name, data in (("left", left_bytes), ("right", right_bytes)):
-            try:
-                sizes.append(image_size(data, max_pixels=self.settings.max_pixels, name=name))
-            except ImageTooLargeError as error:
-                raise HTTPException(413, str(error)) from None
-            except ImageDecodeError as error:
-                raise HTTPException(415, str(error)) from None
+        """The pair's (height, width) from the headers (ImageTooLargeError, ImageDecodeError); BadRequest
+        when the two differ."""
+        sizes = [image_size(data, max_pixels=self.settings.max_pixels, name=name)
+                 for name, data in (("left", left_bytes), ("right", right_bytes))]
         (height, width), (right_height, right_width) = sizes
         if sizes[0] != sizes[1]:
-            raise HTTPException(
-                400, f"left and right images differ in size: {width} x {height} vs "
-                f"{right_width} x {right_height} (width x height); the pair must be rectified",
+            raise BadRequest(
+                f"left and right images differ in size: {width} x {height} vs "
+                f"{right_width} x {right_height} (width x height); the pair must be rectified"
             )
         return height, width
 
     def _decode_pair(self, left_bytes: bytes, right_bytes: bytes) -> tuple[np.ndarray, np.ndarray]:
-        images = []
-        for name, data in (("left", left_bytes), ("right", right_bytes)):
-            try:
-                images.append(read_image(data, max_pixels=self.settings.max_pixels, name=name))
-            except ImageTooLargeError as error:
-                raise HTTPException(413, str(error)) from None
-            except ImageDecodeError as error:
-                raise HTTPException(415, str(error)) from None
-        return images[0], images[1]
+        left = read_image(left_bytes, max_pixels=self.settings.max_pixels, name="left")
+        return left, read_image(right_bytes, max_pixels=self.settings.max_pixels, name="right")
 
 
 def _timed_match(
@@ -227,7 +219,7 @@ async def _discard_body(request: Request) -> None:
         async for _ in request.stream():
             pass
     except ClientDisconnect:
-        raise HTTPException(499, "client disconnected during the upload") from None
+        raise ClientGone("client disconnected during the upload") from None
 
 
 async def _read_pair(request: Request) -> tuple[bytes, bytes]:
@@ -235,27 +227,27 @@ async def _read_pair(request: Request) -> tuple[bytes, bytes]:
     content_type = request.headers.get("content-type", "")
     # Media types are case-insensitive (RFC 9110 8.3.1); the multipart parser lower-cases them too.
     if not content_type.strip().lower().startswith("multipart/form-data"):
-        raise HTTPException(
-            400, f"expected a multipart/form-data body with files 'left' and 'right', got "
-            f"{content_type or 'no Content-Type'}",
+        raise BadRequest(
+            f"expected a multipart/form-data body with files 'left' and 'right', got "
+            f"{content_type or 'no Content-Type'}"
         )
     try:
         form = await request.form(max_files=2, max_fields=16)
     except ClientDisconnect:  # gone mid-upload: nobody to answer, and not a server error
-        raise HTTPException(499, "client disconnected during the upload") from None
+        raise ClientGone("client disconnected during the upload") from None
     try:
         # A misspelt or unexpected part is refused rather than ignored: the client learns of its mistake.
         if unexpected := sorted(set(form.keys()) - {"left", "right"}):
-            raise HTTPException(
-                400, f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and 'right'"
+            raise BadRequest(
+                f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and 'right'"
             )
         parts = []
         for name in ("left", "right"):
             part = form.get(name)
             if part is None:
-                raise HTTPException(400, f"multipart field '{name}' is missing (an image file)")
+                raise BadRequest(f"multipart field '{name}' is missing (an image file)")
             if not isinstance(part, UploadFile):
-                raise HTTPException(400, f"multipart field '{name}' must be a file, not a text field")
+                raise BadRequest(f"multipart field '{name}' must be a file, not a text field")
             parts.append(await part.read())
         return parts[0], parts[1]
     finally:

@@ -17,20 +17,21 @@ from typing import TypeVar
 
 from starlette.concurrency import run_in_threadpool
 
+from service.api.refusals import ClientGone, Unavailable
+
 T = TypeVar("T")
 
 _DISCONNECT_POLL_S = 0.05
 
 
-class QueueFull(Exception):
+class QueueFull(Unavailable):
     """Every place in the queue is taken; ``retry_after`` is a whole-second estimate of the wait."""
 
     def __init__(self, retry_after: int) -> None:
-        super().__init__(f"the inference queue is full; retry in {retry_after} s")
-        self.retry_after = retry_after
+        super().__init__(f"the inference queue is full; retry in {retry_after} s", retry_after=retry_after)
 
 
-class ClientDisconnected(Exception):
+class ClientDisconnected(ClientGone):
     """The client went away while its request waited; the inference was never started."""
 
 
@@ -106,7 +107,7 @@ class InferenceSlot:
                 self._lock.release()
             raise
         if not await _settle(acquire, watcher):
-            raise ClientDisconnected("client disconnected while waiting for the inference slot")
+            raise ClientDisconnected("client disconnected while queued")
         try:
             yield
         finally:
