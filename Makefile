@@ -25,8 +25,10 @@ demo: setup-serve
 		-o out/cones-disparity-color.png --format color --max-disparity 64
 	@echo "wrote out/cones-disparity.png (KITTI uint16) and out/cones-disparity-color.png"
 
+# ruff, then the type checker on service/ (pyproject.toml [tool.mypy]), then the whole suite.
 test: setup
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 	$(BIN)/pytest -q
 
 test-fast: setup
@@ -34,6 +36,7 @@ test-fast: setup
 
 lint: setup
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 bench: setup
 	$(BIN)/python -m bench

@@ -58,12 +58,13 @@ def _point_cache(dispatcher: Any, folder: Path | None) -> None:
         return
     # numba picks a function's cache locator from config.CACHE_DIR when caching is enabled; the compiler
     # reloads the config from the environment later, so the value is set around this call only.
-    previous = numba.config.CACHE_DIR
-    numba.config.CACHE_DIR = str(folder)
+    config: Any = numba.config  # its settings are attributes made at run time: no static types
+    previous = config.CACHE_DIR
+    config.CACHE_DIR = str(folder)
     try:
         dispatcher.enable_caching()
     finally:
-        numba.config.CACHE_DIR = previous
+        config.CACHE_DIR = previous
 
 
 def untrusted_reason(folder: Path) -> str | None:
@@ -169,5 +170,6 @@ def set_threads(threads: int | None) -> int:
     if threads is not None:
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
-        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        config: Any = numba.config
+        numba.set_num_threads(min(threads, config.NUMBA_NUM_THREADS))
     return numba.get_num_threads()

@@ -173,3 +173,17 @@ def test_no_private_names_cross_a_package_or_pass_between_benchmarks():
                              for alias in node.names
                              if alias.name.startswith("_") and not alias.name.startswith("__")]
     assert not offences, "\n".join(offences)
+
+
+def test_the_runtime_ships_its_types_and_make_test_checks_them():
+    # py.typed tells a type checker in a user's project to read service/'s annotations (PEP 561); the
+    # wheel must carry it, and `make test` runs the checker configured in pyproject.toml.
+    assert (ROOT / "service" / "py.typed").is_file()
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    assert "py.typed" in pyproject["tool"]["setuptools"]["package-data"]["service"]
+    assert pyproject["tool"]["mypy"]["files"] == ["service"]
+    dev = pyproject["project"]["optional-dependencies"]["dev"]
+    assert any(requirement.startswith("mypy==") for requirement in dev)  # pinned: a new release may flag more
+    make_test = (ROOT / "Makefile").read_text(encoding="utf-8").split("\ntest:")[1].split("\n\n")[0]
+    assert [line.split()[0] for line in make_test.splitlines()[1:]] == [
+        "$(BIN)/ruff", "$(BIN)/mypy", "$(BIN)/pytest"]

@@ -28,7 +28,7 @@ def negotiate_format(query_format: str | None, accept: str | None, *, offered: S
         return query_format
     for media in _accepted_media_types(accept or ""):
         format = _ACCEPT_TO_FORMAT.get(media)
-        if format in offered:
+        if format is not None and format in offered:
             return format
     return offered[0]
 

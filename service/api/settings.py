@@ -7,6 +7,7 @@ import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from service.features.towers import MAX_THREADS
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
@@ -62,7 +63,7 @@ class Settings:
         ``ADSM_BODY_TIMEOUT_S``, ``ADSM_WRITE_TIMEOUT_S``, ``ADSM_MAX_UNSENT_BYTES`` and ``ADSM_WARMUP``;
         unset or empty keeps the default."""
         env = os.environ if environ is None else environ
-        values: dict[str, object] = {}
+        values: dict[str, Any] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
             values["model_dir"] = Path(model_dir)
         for field, parse in (

@@ -22,6 +22,7 @@ XML, JSON, gzip), and its ``stereoRectify`` is the definition the files were mad
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -151,7 +152,7 @@ def _read_nodes(path: Path, source: str) -> dict[str, np.ndarray]:
         storage.release()
 
 
-def _sequence(node) -> np.ndarray | None:
+def _sequence(node: Any) -> np.ndarray | None:  # a cv2.FileNode
     if node.isReal() or node.isInt():
         return np.array([node.real()])
     values = [node.at(i).real() for i in range(node.size()) if node.at(i).isReal() or node.at(i).isInt()]
@@ -178,7 +179,9 @@ def _size(nodes: dict[str, np.ndarray], source: str) -> tuple[int, int] | None:
     return None
 
 
-def _shaped(value: np.ndarray, shape: tuple[int, int] | None, key: str, source: str) -> np.ndarray:
+def _shaped(value: np.ndarray | None, shape: tuple[int, int] | None, key: str, source: str) -> np.ndarray:
+    if value is None:
+        raise CalibrationError(f"{source}: {key} is missing")
     value = np.asarray(value, dtype=np.float64)
     if not np.isfinite(value).all():
         raise CalibrationError(f"{source}: {key} holds a non-finite value")

@@ -7,6 +7,8 @@ about as much as a few remaps). Bilinear interpolation; pixels that map outside 
 
 from __future__ import annotations
 
+from types import ModuleType
+
 import numpy as np
 
 from service.calibration.errors import CalibrationError
@@ -46,10 +48,11 @@ class Rectifier:
             cv2.remap(right, right_x, right_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
         )
 
-    def _build(self, cv2):
+    def _build(self, cv2: ModuleType) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
         r = self.rectification
         height, width = r.size
-        return tuple(
+        left, right = (
             cv2.initUndistortRectifyMap(k, d, rotation, p, (width, height), cv2.CV_32FC1)
             for k, d, rotation, p in ((r.k1, r.d1, r.r1, r.p1), (r.k2, r.d2, r.r2, r.p2))
         )
+        return left, right

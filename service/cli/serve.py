@@ -11,6 +11,10 @@ import argparse
 import logging
 import os
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported when serving only: `adsm predict` must not pay for FastAPI
+    from service.api.settings import Settings
 
 _APP_FACTORY = "service.api.app:create_app"
 
@@ -48,7 +52,7 @@ def _env_port() -> int:
         raise ValueError(f"ADSM_PORT must be an integer, got {raw!r}") from None
 
 
-def _check_model(settings) -> str | None:
+def _check_model(settings: Settings) -> str | None:
     """Load the model folder and warm it up once, before the port opens; the problem in one line, if any.
 
     Hashes and schema (load), the towers against the manifest's channels and receptive field, then the

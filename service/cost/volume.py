@@ -32,13 +32,13 @@ MAX_COST_SCALE = 1024.0
 
 
 @njit(inline="always")
-def _to_cost(value, scale):
+def _to_cost(value, scale):  # type: ignore[no-untyped-def]
     # The clip keeps features that are not unit-norm from overflowing int16.
     return np.int16(np.rint(min(max(value, -scale), scale)))
 
 
 @njit(parallel=True)
-def _cost_rows(left, right, scale, min_disparity, out):
+def _cost_rows(left, right, scale, min_disparity, out):  # type: ignore[no-untyped-def]
     channels, height, width = left.shape
     disparities = out.shape[2]
     outside = _to_cost(scale, scale)

@@ -27,7 +27,8 @@ class VolumeWorkspace:
     """
 
     def __init__(self) -> None:
-        self._buffers = (np.empty(0, COST_DTYPE), np.empty(0, COST_DTYPE))
+        # Two buffers, or none while they are replaced (tuple[np.ndarray, ...] takes both states).
+        self._buffers: tuple[np.ndarray, ...] = (np.empty(0, COST_DTYPE), np.empty(0, COST_DTYPE))
 
     @property
     def nbytes(self) -> int:

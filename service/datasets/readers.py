@@ -17,6 +17,7 @@ import dataclasses
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 from PIL import Image
@@ -53,7 +54,13 @@ class PairList(Sequence[StereoSample]):
     def __len__(self) -> int:
         return len(self.pairs)
 
-    def __getitem__(self, index):  # type: ignore[override]
+    @overload
+    def __getitem__(self, index: int) -> StereoSample: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[StereoSample]: ...
+
+    def __getitem__(self, index: int | slice) -> StereoSample | list[StereoSample]:
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
         return load_pair(self.pairs[index])

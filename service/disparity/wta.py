@@ -16,7 +16,7 @@ from service.jit import njit
 
 
 @njit(inline="always")
-def _argmin(costs):
+def _argmin(costs):  # type: ignore[no-untyped-def]
     """Index of the smallest cost; the smallest index on ties (strict <)."""
     best = 0
     best_cost = costs[0]
@@ -28,7 +28,7 @@ def _argmin(costs):
 
 
 @njit(parallel=True)
-def _winners(volume, left):
+def _winners(volume, left):  # type: ignore[no-untyped-def]
     height, width, _ = volume.shape
     for y in prange(height):
         for x in range(width):
@@ -39,7 +39,7 @@ _UNSEEN = np.int32(2**30)  # above any int16 cost: the first cell that reaches a
 
 
 @njit(parallel=True)
-def _left_right_winners(volume, min_disparity, left, right):
+def _left_right_winners(volume, min_disparity, left, right):  # type: ignore[no-untyped-def]
     height, width, disparities = volume.shape
     for y in prange(height):
         right_best = np.full(width, _UNSEEN, np.int32)

@@ -146,8 +146,8 @@ def _check(value: Any, node: dict[str, Any], root: dict[str, Any], where: str) -
     if "oneOf" in node:
         matches = [s for s in node["oneOf"] if _check(value, s, root, where) is None]
         if len(matches) != 1:
-            kinds = " | ".join(str(s.get("type", "?")) for s in node["oneOf"])
-            return f"{where} must be exactly one of: {kinds}; got {value!r:.60}"
+            alternatives = " | ".join(str(s.get("type", "?")) for s in node["oneOf"])
+            return f"{where} must be exactly one of: {alternatives}; got {value!r:.60}"
     if "const" in node and value != node["const"]:
         return f"{where} must be {node['const']!r}, got {value!r:.60}"
     if "enum" in node and value not in node["enum"]:

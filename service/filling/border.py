@@ -27,7 +27,7 @@ _BAND = OCCLUDED | FILLED      # Validity.FILLED_OCCLUSION as a plain int for th
 
 
 @njit(parallel=True)
-def _band_rows(disparity, validity):
+def _band_rows(disparity, validity):  # type: ignore[no-untyped-def]
     height, width = disparity.shape
     for y in prange(height):
         # Right band first (x - d >= W, only for negative d), so the left band wins where both reach.

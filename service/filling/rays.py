@@ -35,7 +35,7 @@ _DIRECTIONS = np.array(
 
 
 @njit(inline="always")
-def _horizontal_ray(disparity, validity, y, x, step):
+def _horizontal_ray(disparity, validity, y, x, step):  # type: ignore[no-untyped-def]
     """(found, disparity) of the first VALID pixel from (y, x) along the row in direction ``step``.
 
     A flag, not a NaN or negative sentinel: the kernels are compiled with fastmath, under which isnan is
@@ -50,7 +50,7 @@ def _horizontal_ray(disparity, validity, y, x, step):
 
 
 @njit(parallel=True)
-def _fill_rows(disparity, validity, directions, filled, filled_validity):
+def _fill_rows(disparity, validity, directions, filled, filled_validity):  # type: ignore[no-untyped-def]
     height, width = disparity.shape
     rays = directions.shape[0]
     for y in prange(height):

@@ -29,6 +29,7 @@ import warnings
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
@@ -183,6 +184,7 @@ def _png_facts(source: bytes | str | Path) -> tuple[int, int, int | None] | None
     """(bit depth, colour type, significant bits of the sBIT chunk or None) of a PNG, from the chunks
     before its pixel data; None when the header is not a PNG's."""
     with contextlib.ExitStack() as stack:
+        stream: BinaryIO
         if isinstance(source, bytes | bytearray | memoryview):
             stream = io.BytesIO(source)
         else:

@@ -44,7 +44,7 @@ P2_EDGE = 8.0
 
 
 @njit(inline="always")
-def _add(total, d, value, assign):
+def _add(total, d, value, assign):  # type: ignore[no-untyped-def]
     if not assign:
         value += np.float32(total[d])
     total[d] = np.int16(min(max(value, _INT16_MIN), _INT16_MAX))
@@ -53,7 +53,7 @@ _COLUMN_BLOCK = 32
 
 
 @njit(inline="always")
-def _path_step(cost, previous, current, total, p1, p2, previous_min, assign):
+def _path_step(cost, previous, current, total, p1, p2, previous_min, assign):  # type: ignore[no-untyped-def]
     """One step of eq. (20); ``previous``/``current`` are padded by one sentinel cell on each side.
 
     Adds (or, with ``assign``, writes) the new ``L`` into ``total`` and returns ``min_d L``.
@@ -70,7 +70,7 @@ def _path_step(cost, previous, current, total, p1, p2, previous_min, assign):
 
 
 @njit(inline="always")
-def _jump_penalty(guide, y, x, y_before, x_before, p1, p2, edge):
+def _jump_penalty(guide, y, x, y_before, x_before, p1, p2, edge):  # type: ignore[no-untyped-def]
     """P2 of the step from (y_before, x_before) to (y, x): lower across an image edge when edge > 0."""
     if edge <= 0.0:
         return p2
@@ -79,7 +79,7 @@ def _jump_penalty(guide, y, x, y_before, x_before, p1, p2, edge):
 
 
 @njit(inline="always")
-def _path_start(cost, current, total, assign):
+def _path_start(cost, current, total, assign):  # type: ignore[no-untyped-def]
     """First pixel of a path: ``L = C``; returns ``min_d L``."""
     new_min = _NO_MINIMUM
     for d in range(cost.shape[0]):
@@ -91,7 +91,7 @@ def _path_start(cost, current, total, assign):
 
 
 @njit(parallel=True)
-def _horizontal_paths(cost, p1, p2, guide, edge, total):
+def _horizontal_paths(cost, p1, p2, guide, edge, total):  # type: ignore[no-untyped-def]
     """left->right (writes ``total``) and right->left (adds to it), one row per task."""
     height, width, disparities = cost.shape
     for y in prange(height):
@@ -113,7 +113,7 @@ def _horizontal_paths(cost, p1, p2, guide, edge, total):
 
 
 @njit(parallel=True)
-def _vertical_paths(cost, p1, p2, guide, edge, total):
+def _vertical_paths(cost, p1, p2, guide, edge, total):  # type: ignore[no-untyped-def]
     """top->bottom and bottom->top, both added to ``total``; one block of columns per task."""
     height, width, disparities = cost.shape
     blocks = (width + _COLUMN_BLOCK - 1) // _COLUMN_BLOCK
@@ -176,7 +176,7 @@ def aggregate(cost: np.ndarray, *, p1: float, p2: float, out: np.ndarray | None 
         raise ValueError(f"guide {guide.shape} must be the cost volume's H x W {cost.shape[:2]}")
     cost = np.ascontiguousarray(cost)
     guide = np.ascontiguousarray(guide, dtype=np.float32)
-    p1, p2, edge = np.float32(np.rint(p1)), np.float32(np.rint(p2)), np.float32(edge)
-    _horizontal_paths(cost, p1, p2, guide, edge, out)
-    _vertical_paths(cost, p1, p2, guide, edge, out)
+    whole_p1, whole_p2, edge32 = np.float32(np.rint(p1)), np.float32(np.rint(p2)), np.float32(edge)
+    _horizontal_paths(cost, whole_p1, whole_p2, guide, edge32, out)
+    _vertical_paths(cost, whole_p1, whole_p2, guide, edge32, out)
     return out

@@ -16,7 +16,7 @@ from service.jit import njit
 
 
 @njit(parallel=True)
-def _refine_rows(volume, winners, refined):
+def _refine_rows(volume, winners, refined):  # type: ignore[no-untyped-def]
     height, width, disparities = volume.shape
     for y in prange(height):
         for x in range(width):

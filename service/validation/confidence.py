@@ -45,7 +45,7 @@ REJECTED_WEIGHT = 0.1
 
 
 @njit(parallel=True)
-def _confidence_rows(volume, winners, lowest, confidence):
+def _confidence_rows(volume, winners, lowest, confidence):  # type: ignore[no-untyped-def]
     height, width, disparities = volume.shape
     for y in prange(height):
         for x in range(width):

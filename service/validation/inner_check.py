@@ -19,7 +19,7 @@ from service.validation.codes import MISMATCH, OCCLUDED, VALID
 
 
 @njit(parallel=True)
-def _check_rows(left, right, min_disparity, disparities, validity):
+def _check_rows(left, right, min_disparity, disparities, validity):  # type: ignore[no-untyped-def]
     height, width = left.shape
     for y in prange(height):
         for x in range(width):
