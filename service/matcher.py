@@ -1,6 +1,7 @@
 """Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
 
     towers -> cost_volume -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check) -> fill -> border
+    -> weighted_median
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
@@ -31,6 +32,7 @@ from service.features import FeatureTowers, Towers, default_model_dir
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
+from service.filtering import weighted_median
 from service.limits import LimitError, SearchRange, search_range
 from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, PATHS, aggregate
@@ -60,6 +62,7 @@ class MatchOptions:
     lr_check: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
+    weighted_median: bool = True  # image-guided weighted median at depth edges (service.filtering)
 
     # --- Issue 12 (range offset, confidence): kept apart from the pipeline switches above. ---
     # The search range is [min_disparity, min_disparity + max_disparity), as OpenCV's minDisparity and
@@ -83,7 +86,8 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border", "confidence"):
+        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border", "weighted_median",
+                     "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -310,6 +314,9 @@ class Matcher:
         if options.border:
             disparity, validity = fill_border_band(disparity, validity)
             lap("border")
+        if options.weighted_median:
+            disparity = weighted_median(disparity, left)
+            lap("weighted_median")
         if confidence is not None:
             confidence = weigh_by_check(confidence, validity, disparity)
         timings["total"] = time.perf_counter() - start

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from service.features import ModelError
+from service.filtering import weighted_median
 from service.matcher import Matcher, MatchOptions, StereoResult, Validity
 
 
@@ -58,7 +59,7 @@ def test_slanted_plane_bad1_below_5_percent(matcher: Matcher) -> None:
 
 def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     left, right, _, _ = slanted_plane_pair(height=40, width=64)
-    options = {"max_disparity": 24}
+    options = {"max_disparity": 24, "weighted_median": False}
     bare = MatchOptions(**options, sgm=False, subpixel=False, lr_check=False, border=False)
     raw = matcher(left, right, bare)
     assert np.all(raw.validity == Validity.VALID)
@@ -78,7 +79,7 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     np.testing.assert_array_equal(filled.disparity[~invalid], unfilled.disparity[~invalid])
     assert "fill" in filled.timings and "border" not in filled.timings
 
-    banded = matcher(left, right, MatchOptions(**options))      # the default adds the border band step
+    banded = matcher(left, right, MatchOptions(**options))      # the border band step is on by default
     constant = matcher(left, right, MatchOptions(**options, adaptive_p2=False))
     assert constant.timings.keys() == banded.timings.keys()
     changed = banded.disparity != filled.disparity
@@ -86,6 +87,12 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     assert np.all(banded.validity[changed] == Validity.FILLED_OCCLUSION)
     columns = np.broadcast_to(np.arange(left.shape[1]), changed.shape)
     assert np.all(columns[changed] < banded.disparity[changed])
+
+    default = matcher(left, right, MatchOptions(max_disparity=24))  # ... and so is the weighted median, last
+    assert list(default.timings)[-2:] == ["weighted_median", "total"]
+    assert "weighted_median" not in banded.timings
+    np.testing.assert_array_equal(default.disparity, weighted_median(banded.disparity, left))
+    np.testing.assert_array_equal(default.validity, banded.validity)
 
 
 def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:

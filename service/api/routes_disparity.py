@@ -96,6 +96,8 @@ def stereo_options(
                                        "edges follow image edges.")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
                                   "the right image) the disparity of the surface they continue.")] = True,
+    weighted_median: Annotated[bool, Query(description="Image-guided weighted median at depth edges, so "
+                                           "depth edges follow image edges.")] = True,
     p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
                                       description="SGM small-jump penalty (default: model's).")] = None,
     p2: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
@@ -107,7 +109,8 @@ def stereo_options(
     try:
         return MatchOptions(
             max_disparity=max_disparity, lr_check=lr_check, fill=lr_check if fill is None else fill,
-            subpixel=subpixel, border=border, adaptive_p2=adaptive_p2, p1=p1, p2=p2,
+            subpixel=subpixel, border=border, weighted_median=weighted_median, adaptive_p2=adaptive_p2,
+            p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500
         raise HTTPException(400, str(error)) from None

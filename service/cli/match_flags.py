@@ -17,6 +17,7 @@ STEP_SWITCHES = {
     "subpixel": "integer disparities (no quadratic fit)",
     "adaptive_p2": "constant SGM jump penalty (not lowered at image edges)",
     "border": "leave the left border band (match left of the right image) as matched",
+    "weighted_median": "no image-guided weighted median at depth edges",
 }
 
 
