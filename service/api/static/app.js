@@ -1,5 +1,11 @@
-// Demo page: sends the pair to POST /disparity?format=color&validity=true and shows the answer.
+// Demo page: sends the pair to the service and shows disparity, validity, depth and the point cloud.
+// One Compute = POST /disparity (npy + validity: multipart/mixed), and with a camera also POST /depth
+// (npy) and POST /pointcloud (PLY), all with the same options; the page paints the maps itself.
 "use strict";
+
+import { GREY, autoRange, drawScale, paint } from "./colormap.js";
+import { parseMultipart, parseNpy, parsePly } from "./formats.js";
+import { CloudViewer } from "./viewer.js";
 
 // Validity codes of the matcher (docs/architecture.md) and how the page paints them.
 const VALIDITY = {
@@ -10,9 +16,22 @@ const VALIDITY = {
   5: ["filled occlusion", [254, 224, 139]],
   6: ["filled mismatch", [244, 109, 67]],
 };
+// The sample pair's calibration is not published: these are illustrative values, not its rig's.
+const SAMPLE = { maxDisparity: "32", focalPx: "300", baselineM: "0.05" };
+// Downloads: the answer the page holds (npy, PLY), or a new request in another format.
+const FILES = {
+  "disparity-png16": { route: "/disparity", format: "png16", name: "disparity.png" },
+  "disparity-npy": { held: "disparityNpy", name: "disparity.npy" },
+  "disparity-pfm": { route: "/disparity", format: "pfm", name: "disparity.pfm" },
+  "depth-png16": { route: "/depth", format: "png16", name: "depth.png" },
+  "depth-npy": { held: "depthNpy", name: "depth.npy" },
+  "pointcloud-ply": { held: "ply", name: "pointcloud.ply" },
+};
 
 const $ = (id) => document.getElementById(id);
 let samplePair = null; // {left: Blob, right: Blob} once "Use the sample pair" was pressed
+let shown = null; // what the results section shows, and the request that made it
+let viewer = null;
 
 function setStatus(text, isError = false) {
   $("status").textContent = text;
@@ -26,8 +45,12 @@ async function loadModelInfo() {
   } catch (error) {
     $("model-name").textContent = "unavailable";
   }
-  const ready = await fetch("/readyz");
-  $("readiness").textContent = ready.ok ? "ready" : "warming up";
+  for (;;) { // until the model is warm: requests before that are answered 503
+    const ready = await fetch("/readyz").then((r) => r.ok, () => false);
+    $("readiness").textContent = ready ? "ready" : "warming up";
+    if (ready) return;
+    await new Promise((resolve) => setTimeout(resolve, 1000));
+  }
 }
 
 async function useSamplePair() {
@@ -36,8 +59,11 @@ async function useSamplePair() {
   samplePair = { left, right };
   $("left").value = "";
   $("right").value = "";
-  $("max-disparity").value = "32";
+  $("max-disparity").value = SAMPLE.maxDisparity;
+  $("focal-px").value = SAMPLE.focalPx;
+  $("baseline-m").value = SAMPLE.baselineM;
   $("pair-source").textContent = "sample pair selected (225 x 187, disparities up to 28)";
+  $("camera-hint").textContent = "Sample pair: illustrative focal length and baseline, not its rig's.";
 }
 
 function chosenPair() {
@@ -48,125 +74,273 @@ function chosenPair() {
   return null;
 }
 
-function queryString() {
-  const params = new URLSearchParams({ format: "color", validity: "true" });
+// The query parameters of one Compute: the matching options (every route), the camera (depth, cloud).
+function requestOptions() {
+  const match = new URLSearchParams();
   const maxDisparity = $("max-disparity").value.trim();
-  if (maxDisparity) params.set("max_disparity", maxDisparity);
+  if (maxDisparity) match.set("max_disparity", maxDisparity);
   for (const [id, name] of [["lr-check", "lr_check"], ["fill", "fill"], ["subpixel", "subpixel"]]) {
-    params.set(name, $(id).checked ? "true" : "false");
+    match.set(name, $(id).checked ? "true" : "false");
   }
-  return params.toString();
+  const camera = new URLSearchParams();
+  const [focal, baseline] = [$("focal-px").value.trim(), $("baseline-m").value.trim()];
+  if (Boolean(focal) !== Boolean(baseline)) {
+    throw new Error("give both the focal length and the baseline (or neither, for disparity only)");
+  }
+  if (focal) {
+    camera.set("focal_px", focal);
+    camera.set("baseline_m", baseline);
+    for (const name of ["cx", "cy"]) if ($(name).value.trim()) camera.set(name, $(name).value.trim());
+  }
+  return { match, camera: focal ? camera : null };
 }
 
-// Splits a multipart/mixed body into {name: Blob}; each part names itself in Content-Disposition.
-function parseMultipart(buffer, contentType) {
-  const boundary = /boundary="?([^";]+)"?/.exec(contentType)[1];
-  const bytes = new Uint8Array(buffer);
-  const delimiter = new TextEncoder().encode(`--${boundary}`);
-  const blankLine = new TextEncoder().encode("\r\n\r\n");
-  const parts = {};
-  let at = indexOf(bytes, delimiter, 0);
-  while (at >= 0 && !(bytes[at + delimiter.length] === 45 && bytes[at + delimiter.length + 1] === 45)) {
-    const headStart = at + delimiter.length + 2; // skip CRLF after the delimiter
-    const headEnd = indexOf(bytes, blankLine, headStart);
-    const head = new TextDecoder().decode(bytes.subarray(headStart, headEnd));
-    const next = indexOf(bytes, delimiter, headEnd + 4);
-    const name = /[;\s]name="([^"]+)"/.exec(head)[1];
-    const type = (/content-type:\s*([^\r\n]+)/i.exec(head) || [null, "application/octet-stream"])[1];
-    parts[name] = new Blob([bytes.subarray(headEnd + 4, next - 2)], { type }); // part ends with CRLF
-    at = next;
+async function post(route, pair, ...queries) {
+  const body = new FormData();
+  body.append("left", pair.left, pair.left.name || "left.png");
+  body.append("right", pair.right, pair.right.name || "right.png");
+  const query = new URLSearchParams(queries.flatMap((q) => [...q.entries()]));
+  const started = performance.now();
+  const response = await fetch(`${route}?${query}`, { method: "POST", body });
+  if (!response.ok) {
+    const problem = await response.json().catch(() => ({ detail: response.statusText }));
+    throw new Error(`${response.status}: ${problem.detail}`);
   }
-  return parts;
+  return { response, body: await response.arrayBuffer(), ms: performance.now() - started };
 }
 
-function indexOf(haystack, needle, from) {
-  outer: for (let i = from; i <= haystack.length - needle.length; i++) {
-    for (let j = 0; j < needle.length; j++) if (haystack[i + j] !== needle[j]) continue outer;
-    return i;
-  }
-  return -1;
-}
-
-async function drawValidity(blob) {
+async function decodeCodes(blob) { // the validity PNG: grey, R = G = B = the code
   const image = await createImageBitmap(blob);
-  const canvas = $("validity");
-  canvas.width = image.width;
-  canvas.height = image.height;
+  const canvas = new OffscreenCanvas(image.width, image.height);
   const context = canvas.getContext("2d", { willReadFrequently: true });
   context.drawImage(image, 0, 0);
-  const pixels = context.getImageData(0, 0, image.width, image.height);
-  const counts = {};
-  for (let i = 0; i < pixels.data.length; i += 4) {
-    const code = pixels.data[i]; // grey PNG: R = G = B = the validity code
-    counts[code] = (counts[code] || 0) + 1;
-    const colour = (VALIDITY[code] || ["unknown", [128, 128, 128]])[1];
-    pixels.data.set([...colour, 255], i);
-  }
-  context.putImageData(pixels, 0, 0);
-  const total = image.width * image.height;
-  $("validity-legend").replaceChildren(...Object.entries(counts).map(([code, count]) => {
-    const [label, [r, g, b]] = VALIDITY[code] || ["unknown", [128, 128, 128]];
-    const item = document.createElement("li");
-    item.innerHTML = `<span class="swatch" style="background: rgb(${r}, ${g}, ${b})"></span>`;
-    item.append(`${label}: ${(100 * count / total).toFixed(1)} %`);
-    return item;
-  }));
+  const rgba = context.getImageData(0, 0, image.width, image.height).data;
+  const codes = new Uint8Array(image.width * image.height);
+  for (let i = 0; i < codes.length; i++) codes[i] = rgba[4 * i];
+  return codes;
 }
 
-function showTimings(header, roundTripMs) {
-  const rows = (header || "").split(",").map((metric) => metric.trim()).filter(Boolean).map((metric) => {
-    const [name, ...params] = metric.split(";");
-    const duration = params.map((p) => p.trim()).find((p) => p.startsWith("dur="));
-    return [name, duration ? Number(duration.slice(4)).toFixed(1) : "?"];
-  });
-  rows.push(["round trip (browser)", roundTripMs.toFixed(1)]);
-  $("timings").tBodies[0].replaceChildren(...rows.map(([name, ms]) => {
-    const row = document.createElement("tr");
-    for (const text of [name, ms]) row.insertCell().textContent = text;
-    return row;
-  }));
+async function confidenceOf(blob) { // npy float32, or 8-bit PNG = confidence x 255
+  const bytes = await blob.arrayBuffer();
+  if (new Uint8Array(bytes)[0] === 0x93) return parseNpy(bytes).data;
+  const codes = await decodeCodes(blob);
+  return Float32Array.from(codes, (value) => value / 255);
 }
 
 async function compute(event) {
   event.preventDefault();
+  clearResults();
   const pair = chosenPair();
   if (!pair) {
     setStatus("choose a left and a right image, or the sample pair", true);
     return;
   }
-  const body = new FormData();
-  body.append("left", pair.left, pair.left.name || "left.png");
-  body.append("right", pair.right, pair.right.name || "right.png");
   $("compute").disabled = true;
-  setStatus("computing…");
-  const started = performance.now();
   try {
-    const response = await fetch(`/disparity?${queryString()}`, { method: "POST", body });
-    if (!response.ok) {
-      const problem = await response.json().catch(() => ({ detail: response.statusText }));
-      throw new Error(`${response.status}: ${problem.detail}`);
+    const { match, camera } = requestOptions();
+    setStatus("computing the disparity…");
+    const request = { pair, match, camera };
+    const answer = await post("/disparity", pair, match, new URLSearchParams({ format: "npy", validity: "true" }));
+    const parts = parseMultipart(answer.body, answer.response.headers.get("content-type"));
+    const disparityNpy = parts.disparity;
+    const disparity = parseNpy(await disparityNpy.arrayBuffer());
+    const result = {
+      request, disparity, disparityNpy, validity: await decodeCodes(parts.validity),
+      confidence: parts.confidence ? await confidenceOf(parts.confidence) : null,
+      timings: [["", answer]], requestId: answer.response.headers.get("x-request-id"),
+    };
+    if (camera) {
+      setStatus("computing the depth…");
+      const depthAnswer = await post("/depth", pair, match, camera, new URLSearchParams({ format: "npy" }));
+      result.depthNpy = new Blob([depthAnswer.body], { type: "application/x-npy" });
+      result.depth = parseNpy(depthAnswer.body).data;
+      setStatus("computing the point cloud…");
+      const cloudAnswer = await post("/pointcloud", pair, match, camera);
+      result.ply = new Blob([cloudAnswer.body], { type: "application/x-ply" });
+      result.cloud = parsePly(cloudAnswer.body);
+      result.timings.push(["depth request", depthAnswer], ["point cloud request", cloudAnswer]);
     }
-    const parts = parseMultipart(await response.arrayBuffer(), response.headers.get("content-type"));
-    const roundTrip = performance.now() - started;
+    shown = result;
     $("left-preview").src = URL.createObjectURL(pair.left);
-    const disparityImage = $("disparity");
-    const loaded = new Promise((resolve) => { disparityImage.onload = resolve; });
-    disparityImage.src = URL.createObjectURL(parts.disparity);
-    await Promise.all([loaded, drawValidity(parts.validity)]);
-    showTimings(response.headers.get("server-timing"), roundTrip);
-    $("request-id").textContent = response.headers.get("x-request-id");
-    $("results").hidden = false;
-    setStatus(`done: ${disparityImage.naturalWidth} x ${disparityImage.naturalHeight}`);
+    showResults();
+    const points = result.cloud ? `, ${result.cloud.count} points` : "";
+    setStatus(`done: ${disparity.width} x ${disparity.height}${points}`);
   } catch (error) {
+    clearResults(); // no answer from an earlier pair stays under the error
     setStatus(error.message, true);
   } finally {
     $("compute").disabled = false;
   }
 }
 
+function clearResults() {
+  shown = null;
+  $("results").hidden = true;
+  const preview = $("left-preview");
+  if (preview.src) URL.revokeObjectURL(preview.src);
+  preview.removeAttribute("src");
+  for (const id of ["disparity", "confidence", "validity", "depth"]) $(id).width = $(id).height = 0;
+  $("validity-legend").replaceChildren();
+  $("timings").tBodies[0].replaceChildren();
+  $("request-id").textContent = "";
+  $("readout").textContent = "Point at a map to read its values.";
+  if (viewer) viewer.clear();
+}
+
+function showResults() {
+  const { disparity, cloud, confidence } = shown;
+  $("results").hidden = false;
+  $("confidence-figure").hidden = !confidence;
+  $("depth-figure").hidden = !shown.depth;
+  $("cloud-figure").hidden = !cloud;
+  for (const element of document.querySelectorAll("#downloads .metric")) element.hidden = !shown.depth;
+  drawValidity(shown.validity, disparity.width, disparity.height);
+  paintMaps();
+  showTimings();
+  if (cloud) {
+    $("point-count").textContent = cloud.count.toLocaleString("en");
+    const focal = Number(shown.request.camera.get("focal_px"));
+    // Points as large as an image pixel looks in the first view, so that it shows no gaps.
+    const size = Math.min(8, Math.max(1, Math.round($("cloud").clientHeight / disparity.height)));
+    $("point-size").value = String(size);
+    viewer.setPointSize(size);
+    viewer.show(cloud, { fovY: 2 * Math.atan(disparity.height / (2 * focal)) });
+    $("webgl-missing").hidden = viewer.available;
+  }
+}
+
+// Paints disparity, confidence and depth with the chosen colour range (no new request).
+function paintMaps() {
+  if (!shown) return;
+  const { width, height, data } = shown.disparity;
+  const fixed = $("range-fixed").checked;
+  const range = (values, lowId, highId) => {
+    const auto = autoRange(values);
+    if (!fixed) {
+      $(lowId).placeholder = auto[0].toFixed(2);
+      $(highId).placeholder = auto[1].toFixed(2);
+      return auto;
+    }
+    const [low, high] = [Number($(lowId).value || auto[0]), Number($(highId).value || auto[1])];
+    return high > low ? [low, high] : auto;
+  };
+  const [low, high] = range(data, "disparity-low", "disparity-high");
+  paint($("disparity"), data, width, height, { low, high });
+  drawScale($("disparity-scale"), { low, high, unit: "px" });
+  if (shown.confidence) {
+    paint($("confidence"), shown.confidence, width, height, { low: 0, high: 1, lut: GREY });
+    drawScale($("confidence-scale"), { low: 0, high: 1, unit: "", lut: GREY, digits: 2 });
+  }
+  if (shown.depth) {
+    const [near, far] = range(shown.depth, "depth-low", "depth-high");
+    paint($("depth"), shown.depth, width, height, { low: near, high: far, reversed: true });
+    drawScale($("depth-scale"), { low: near, high: far, unit: "m", reversed: true, digits: 2 });
+  }
+}
+
+function drawValidity(codes, width, height) {
+  const canvas = $("validity");
+  canvas.width = width;
+  canvas.height = height;
+  const context = canvas.getContext("2d");
+  const pixels = context.createImageData(width, height);
+  const counts = {};
+  codes.forEach((code, i) => {
+    counts[code] = (counts[code] || 0) + 1;
+    pixels.data.set([...(VALIDITY[code] || ["unknown", [128, 128, 128]])[1], 255], 4 * i);
+  });
+  context.putImageData(pixels, 0, 0);
+  $("validity-legend").replaceChildren(...Object.entries(counts).map(([code, count]) => {
+    const [label, [r, g, b]] = VALIDITY[code] || ["unknown", [128, 128, 128]];
+    const item = document.createElement("li");
+    const swatch = document.createElement("span");
+    swatch.className = "swatch";
+    swatch.style.background = `rgb(${r}, ${g}, ${b})`;
+    item.append(swatch, `${label}: ${(100 * count / codes.length).toFixed(1)} %`);
+    return item;
+  }));
+}
+
+function showTimings() {
+  const rows = [];
+  for (const [label, { response, ms }] of shown.timings) {
+    const stages = (response.headers.get("server-timing") || "").split(",").map((m) => m.trim()).filter(Boolean);
+    for (const metric of stages) {
+      const [name, ...params] = metric.split(";");
+      const duration = params.map((p) => p.trim()).find((p) => p.startsWith("dur="));
+      // the disparity request stage by stage; the others by their total
+      if (!label || name === "total") {
+        rows.push([label ? `${label}: ${name}` : name, duration ? Number(duration.slice(4)) : NaN]);
+      }
+    }
+    rows.push([label ? `${label}: round trip (browser)` : "round trip (browser)", ms]);
+  }
+  $("timings").tBodies[0].replaceChildren(...rows.map(([name, ms]) => {
+    const row = document.createElement("tr");
+    for (const text of [name, Number.isFinite(ms) ? ms.toFixed(1) : "?"]) row.insertCell().textContent = text;
+    return row;
+  }));
+  $("request-id").textContent = shown.requestId;
+}
+
+// The values under the pointer, for any of the maps.
+function readout(event) {
+  if (!shown) return;
+  const { width, height, data } = shown.disparity;
+  const box = event.target.getBoundingClientRect();
+  const u = Math.min(width - 1, Math.floor((event.clientX - box.left) / box.width * width));
+  const v = Math.min(height - 1, Math.floor((event.clientY - box.top) / box.height * height));
+  const i = v * width + u;
+  const words = [`u ${u}, v ${v}:`, `disparity ${Number.isFinite(data[i]) ? data[i].toFixed(2) + " px" : "none"}`];
+  if (shown.depth) words.push(`depth ${Number.isFinite(shown.depth[i]) ? shown.depth[i].toFixed(3) + " m" : "none"}`);
+  if (shown.confidence) words.push(`confidence ${shown.confidence[i].toFixed(2)}`);
+  words.push((VALIDITY[shown.validity[i]] || ["unknown"])[0]);
+  $("readout").textContent = words.join(" · ");
+}
+
+async function download(event) {
+  const file = FILES[event.target.dataset.file];
+  if (!shown || !file) return;
+  try {
+    let blob = shown[file.held];
+    if (!blob) {
+      setStatus(`computing ${file.name}…`);
+      const { pair, match, camera } = shown.request;
+      const queries = [match, ...(file.route === "/disparity" ? [] : [camera])];
+      blob = new Blob([(await post(file.route, pair, ...queries, new URLSearchParams({ format: file.format }))).body]);
+    }
+    const link = document.createElement("a");
+    link.href = URL.createObjectURL(blob);
+    link.download = file.name;
+    link.click();
+    setTimeout(() => URL.revokeObjectURL(link.href), 10000);
+    setStatus(`saved ${file.name}`);
+  } catch (error) {
+    setStatus(`${file.name}: ${error.message}`, true);
+  }
+}
+
 document.addEventListener("DOMContentLoaded", () => {
+  viewer = new CloudViewer($("cloud"));
   $("use-sample").addEventListener("click", () => useSamplePair().catch((e) => setStatus(e.message, true)));
-  for (const id of ["left", "right"]) $(id).addEventListener("change", () => { $("pair-source").textContent = ""; });
+  for (const id of ["left", "right"]) {
+    $(id).addEventListener("change", () => {
+      $("pair-source").textContent = "";
+      $("camera-hint").textContent = "Leave empty for disparity only.";
+    });
+  }
   $("pair-form").addEventListener("submit", compute);
+  for (const id of ["range-auto", "range-fixed", "disparity-low", "disparity-high", "depth-low", "depth-high"]) {
+    $(id).addEventListener("input", paintMaps);
+  }
+  $("range-fixed").addEventListener("change", () => { // start from the range the maps show now
+    for (const id of ["disparity-low", "disparity-high", "depth-low", "depth-high"]) {
+      if (!$(id).value) $(id).value = $(id).placeholder;
+    }
+  });
+  for (const id of ["disparity", "confidence", "validity", "depth"]) $(id).addEventListener("mousemove", readout);
+  $("downloads").addEventListener("click", (event) => { if (event.target.dataset.file) download(event); });
+  $("reset-view").addEventListener("click", () => viewer.reset());
+  $("point-size").addEventListener("input", () => viewer.setPointSize(Number($("point-size").value)));
   loadModelInfo();
 });
