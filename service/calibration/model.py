@@ -133,6 +133,24 @@ class StereoCalibration:
             size=size,
         )
 
+    def for_size(self, height: int, width: int) -> StereoCalibration:
+        """The calibration of ``height`` x ``width`` images: itself when it names no size or this one,
+        else :meth:`scaled` to it (Middlebury's full/half/quarter sizes) when the aspect ratio agrees
+        within a pixel; any other size, or a raw rig's, is a :class:`CalibrationError`.
+
+        >>> StereoCalibration(focal_px=1000.0, baseline_m=0.2, cx=499.5, cy=99.5, size=(200, 1000)
+        ...                   ).for_size(100, 500).focal_px
+        500.0
+        """
+        if self.size is None or self.size == (height, width):
+            return self
+        calibrated_height, calibrated_width = self.size
+        factor = width / calibrated_width if calibrated_width > 0 and calibrated_height > 0 else 0.0
+        if self.rectification is not None or factor <= 0 or abs(factor * calibrated_height - height) > 1.0:
+            raise CalibrationError(f"{self._where()}calibrated for {calibrated_width}x{calibrated_height} "
+                                   f"images, got {width}x{height}")
+        return self.scaled(factor)
+
     @classmethod
     def from_q(cls, q: np.ndarray, *, source: str = "", size: tuple[int, int] | None = None
                ) -> StereoCalibration:

@@ -43,24 +43,32 @@ class PairCheck:
     scale: int  # reduction factor used
 
     def warnings(self, *, valid_share: float | None = None) -> list[str]:
-        """One-line warnings (empty when the pair looks fine); ``valid_share`` from the matcher's check."""
+        """One-line warnings (empty when the pair looks fine); ``valid_share`` from the matcher's check.
+        The remedies are named as ``adsm predict``'s flags."""
+        return [sentence for _, sentence in self.findings(valid_share=valid_share)]
+
+    def findings(self, *, valid_share: float | None = None, calibration: str = "--calib",
+                 disparity_range: str = "--max-disparity") -> list[tuple[str, str]]:
+        """``(kind, sentence)`` of each warning, kind ``swapped``, ``unrectified`` or ``few-valid``;
+        ``calibration`` and ``disparity_range`` name the remedies in the caller's words (the HTTP
+        service says ``the calib file field`` and ``max_disparity``)."""
         found = []
         if self.voting_pixels > 0 and self.negative_share >= SWAPPED_SHARE:
-            found.append(
+            found.append(("swapped",
                 f"the pair looks swapped: {self.negative_share:.0%} of textured pixels match best at a "
                 "negative disparity (is LEFT the right camera's image?)"
-            )
+            ))
         if abs(self.vertical_offset_px) >= VERTICAL_PX:
-            found.append(
+            found.append(("unrectified",
                 "the pair does not look rectified: estimated vertical offset "
                 f"{self.vertical_offset_px:+.1f} px (spread {self.vertical_spread_px:.1f} px); "
-                "rectify it first (--calib)"
-            )
+                f"rectify it first ({calibration})"
+            ))
         if valid_share is not None and valid_share < LOW_VALID_SHARE:
-            found.append(
+            found.append(("few-valid",
                 f"only {valid_share:.0%} of pixels passed the left-right check: the disparity map is mostly "
-                "filled in (wrong --max-disparity, textureless scene, or not a rectified pair?)"
-            )
+                f"filled in (wrong {disparity_range}, textureless scene, or not a rectified pair?)"
+            ))
         return found
 
     def as_dict(self) -> dict[str, float | int]:

@@ -34,16 +34,20 @@ def media_type(format: str) -> str:
     return MEDIA_TYPES[_check_format(format)]
 
 
-def encode_disparity(disparity: np.ndarray, format: str) -> bytes:
+def encode_disparity(disparity: np.ndarray, format: str, *,
+                     color_range: tuple[float, float] | None = None) -> bytes:
     """Encode a float disparity map (NaN invalid) as ``png16``, ``npy``, ``pfm`` or ``color``.
 
     Any non-finite value is invalid; png16 and color also treat d <= 0 as invalid (0 means "no data"
-    in the KITTI convention), while npy and pfm keep a zero disparity.
+    in the KITTI convention), while npy and pfm keep a zero disparity. ``color_range`` (low, high) fixes
+    the colour map's ends for ``color`` (default: the map's own minimum and maximum), so that frames
+    compare.
     """
     format = _check_format(format)
     values = _as_disparity(disparity)
     if format == "color":
-        return colorize_png(values)
+        low, high = (None, None) if color_range is None else color_range
+        return colorize_png(values, min_disparity=low, max_disparity=high)
     buffer = io.BytesIO()
     if format == "png16":
         # zlib level 1: a 375x1242 sub-pixel map encodes in 0.036 instead of 0.087 CPU s (level 6, Pillow's
