@@ -2,7 +2,8 @@
 bounded error, and filling them lowers bad-2 against ``fill=False`` (hand-made cases: test_disparity.py).
 
 Cones is evaluation only: the bounds below were measured on it, nothing was chosen from it. Measured with
-adsm-fast-int8 at D = 64 without the weighted median (the runtime's defaults otherwise) on this project's AVX2 machine:
+adsm-fast-int8 at D = 64 without the weighted median (the runtime's defaults otherwise) on this project's
+AVX2 machine:
 
     python - <<'PY'   # what this test computes, printed
     import numpy as np; from service.datasets import open_dataset
