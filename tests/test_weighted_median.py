@@ -86,3 +86,19 @@ def test_bad_input_is_refused():
         weighted_median(np.zeros((4, 5), np.float32), np.zeros((5, 4, 3), np.uint8))
     with pytest.raises(ValueError, match="radius"):
         weighted_median(np.zeros((4, 5), np.float32), np.zeros((4, 5, 3), np.uint8), radius=0)
+
+
+def test_read_only_images_use_the_same_compiled_kernel(rng):
+    # A decoded file is a read-only array; numba would compile a second specialisation for it on the
+    # first real request, after warm-up.
+    from service.filtering.weighted_median import _filter_rows
+
+    disparity = rng.uniform(0, 9, (12, 16)).astype(np.float32)
+    image = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    weighted_median(disparity, image)
+    compiled = len(_filter_rows.signatures)
+    image.flags.writeable = False
+    disparity.flags.writeable = False
+    weighted_median(disparity, image)
+    weighted_median(disparity.copy(), np.asfortranarray(image))
+    assert len(_filter_rows.signatures) == compiled

@@ -133,7 +133,12 @@ def weighted_median(disparity: np.ndarray, image: np.ndarray, *, radius: int = R
     colour_weight = np.exp(-differences / (3.0 * sigma_colour)).astype(np.float32)
     offsets = np.arange(-radius, radius + 1, dtype=np.float32)
     space_weight = np.exp(-np.hypot(offsets[:, None], offsets[None]) / sigma_space).astype(np.float32)
+    # Numba types a read-only array (a decoded file) apart from a writable one: one specialisation only,
+    # the one warm-up compiles.
+    image = np.ascontiguousarray(image) if image.flags.writeable else np.array(image)
+    if not disparity.flags.writeable:
+        disparity = disparity.copy()
     out = np.empty_like(disparity)
-    _filter_rows(disparity, np.ascontiguousarray(image), radius, colour_weight, space_weight,
+    _filter_rows(disparity, image, radius, colour_weight, space_weight,
                  np.float32(edge_spread), out)
     return out
