@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,11 +29,12 @@ import numpy as np
 from service import jit
 from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
-from service.features import FeatureTowers, Towers, default_model_dir
+from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
 from service.filling import fill_border_band, fill_invalid
 from service.filtering import weighted_median
+from service.kernels import load_kernels_in_background
 from service.limits import LimitError, SearchRange, search_range
 from service.memory import MemoryPlan, plan_request
 from service.optimization import MAX_PENALTY, PATHS, aggregate
@@ -147,6 +149,7 @@ class Matcher:
         self.threads = threads
         self.manifest: dict[str, Any] = towers.manifest
         self.workspace = VolumeWorkspace() if reuse_volumes else None
+        self._preparing: list[threading.Thread] = []
 
     @classmethod
     def from_folder(
@@ -157,17 +160,30 @@ class Matcher:
         providers: Sequence[str] | None = None,
         reuse_volumes: bool = True,
         max_request_bytes: int | None = None,
+        prepare_for: tuple[int, int, MatchOptions] | None = None,
     ) -> Matcher:
-        """Load (and sha256-verify) a model folder; ``None`` is the default shipped model."""
+        """Load (and sha256-verify) a model folder; ``None`` is the default shipped model.
+
+        ``prepare_for=(height, width, options)``: the first call's pair, when it is known before the model
+        loads (``adsm predict`` reads it from the headers): :meth:`prepare` starts before the towers'
+        sessions are built, so its work overlaps the model load and the decoding."""
         folder = default_model_dir() if folder is None else Path(folder)
+        workspace = VolumeWorkspace() if reuse_volumes else None
+        preparing = [] if prepare_for is None else _start_preparing(load_manifest(folder), workspace,
+                                                                    *prepare_for)
         towers = FeatureTowers(folder, threads=threads, providers=providers)
-        return cls(towers, threads=threads, reuse_volumes=reuse_volumes, max_request_bytes=max_request_bytes)
+        matcher = cls(towers, threads=threads, reuse_volumes=reuse_volumes,
+                      max_request_bytes=max_request_bytes)
+        matcher.workspace = workspace
+        matcher._preparing = preparing
+        return matcher
 
     def warmup(self) -> None:
         """Check the towers against the manifest, then run the real pipeline on a tiny pair once per set
         of options that reaches a different kernel, so every kernel is compiled (or loaded from the cache)
         before the first request. A cache that cannot be read (a corrupt index) is cleared and the kernels
         compiled afresh, once; any other failure is raised."""
+        self._prepared()
         self.towers.warmup()
         rng = np.random.default_rng(0)
         left = rng.integers(0, 256, (12, 24, 3), dtype=np.uint8)
@@ -188,6 +204,25 @@ class Matcher:
         every_kernel = MatchOptions(max_disparity=4, confidence=True)
         for options in (every_kernel, MatchOptions(max_disparity=4, lr_check=False, fill=False)):
             self(left, right, options)
+
+    def prepare(self, height: int, width: int, options: MatchOptions | None = None) -> None:
+        """Start, in background threads, what the first call on an ``height x width`` pair would otherwise
+        do first: load the Numba kernels (service/kernels.py) and map the two cost volumes with their
+        pages present (service/cost/workspace.py). The next call waits for both before its towers run
+        (the wait is its ``prepare`` timing). For one-off runs (``adsm predict``, whose model load and
+        decoding the work overlaps); a warm matcher gains nothing. Raises as :meth:`check_memory` does;
+        a failure in the threads is left to the call to meet."""
+        options = MatchOptions() if options is None else options
+        self.check_memory(height, width, options)
+        self._preparing += _start_preparing(self.manifest, self.workspace, height, width, options)
+
+    def _prepared(self) -> float:
+        """Wait for :meth:`prepare`'s threads (the workspace must not be touched while they run); returns
+        the seconds waited."""
+        started = time.perf_counter()
+        while self._preparing:
+            self._preparing.pop().join()
+        return time.perf_counter() - started
 
     def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tower features of both views, in tiles when one run would exceed the tower work budget."""
@@ -268,6 +303,10 @@ class Matcher:
             timings[stage] = now - clock
             clock = now
 
+        if self._preparing:  # Matcher.prepare's work, if it is still running
+            self._prepared()
+            lap("prepare")
+
         left_features, right_features = self._features(left, right)
         lap("towers")
         scale = float(self.manifest["cost"]["scale"])
@@ -321,3 +360,25 @@ class Matcher:
             confidence = weigh_by_check(confidence, validity, disparity)
         timings["total"] = time.perf_counter() - start
         return StereoResult(disparity, validity, timings, confidence)
+
+
+def _start_preparing(manifest: dict[str, Any], workspace: VolumeWorkspace | None, height: int, width: int,
+                     options: MatchOptions) -> list[threading.Thread]:
+    """Threads loading the kernels and reserving the volumes of a call (Matcher.prepare)."""
+    span = search_range(width, min_disparity=options.min_disparity, max_disparity=options.max_disparity,
+                        default_max=int(manifest["disparity"]["default_max"]))
+    threads = [load_kernels_in_background(confidence=options.confidence)]
+    if workspace is not None:
+        shape = (height, width, span.count)
+        threads.append(threading.Thread(target=_quietly, args=(workspace.reserve, shape), name="adsm-volumes",
+                                        daemon=True))
+        threads[-1].start()
+    return threads
+
+
+def _quietly(job: Any, *arguments: Any) -> None:
+    """Run a preparation job; an error is logged only (the call itself allocates again and meets it)."""
+    try:
+        job(*arguments)
+    except Exception as error:  # an optimisation must not fail the run
+        logger.debug("preparing the first call failed: %s: %s", type(error).__name__, error)

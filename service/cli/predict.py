@@ -24,7 +24,8 @@ image headers before anything is decoded or allocated. Every expected failure (m
 undecodable image, sizes differ, bad model folder, bad calibration, a pair over a limit) ends with one
 line ``adsm: error: ...`` and exit status 1, never a traceback. Warnings (a pair that looks swapped or
 unrectified, few pixels passing the check) are ``adsm: warning: ...`` lines; they do not change the
-exit status.
+exit status. The first pair's kernels and cost volumes are prepared in the background while the model
+loads (Matcher.prepare; ``ADSM_PREPARE=0`` turns it off, for measurements).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -129,6 +131,9 @@ class _Targets:
         return Path(template.replace("{name}", name))
 
 
+# Set to 0 to turn Matcher.prepare off (measurements: python -m bench first_call --compare).
+PREPARE_ENV = "ADSM_PREPARE"
+
 # RequestLimits field -> the flag of this command that sets it (the ADSM_* variable does too).
 _LIMIT_FLAGS = {"max_pixels": "--max-pixels", "max_disparity": "--disparity-limit",
                 "max_cost_cells": "--max-cost-cells", "max_request_bytes": "--max-memory-mib"}
@@ -163,8 +168,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
     options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
+    first_size = None
     if not batch:  # refuse before the model loads, from the headers alone
-        _check_request(pairs[0], manifest, limits, options)
+        first_size = _check_request(pairs[0], manifest, limits, options)
+    elif pairs and pairs[0].right is not None:
+        try:  # only to prepare the first call: a bad pair is reported in its turn
+            first_size = _check_request(pairs[0], manifest, limits, options)
+        except (OSError, ValueError):
+            first_size = None
 
     calibration = None
     if args.calib is not None:
@@ -179,8 +190,12 @@ def run(args: argparse.Namespace) -> int:
     from service.matcher import Matcher
 
     try:
+        # Kernels load and cost-volume pages map in the background while the model loads and the images
+        # decode; the first call waits for the rest (Matcher.prepare; docs/performance.md, "First call").
+        prepare = first_size is not None and os.environ.get(PREPARE_ENV, "1").strip() != "0"
         matcher = Matcher.from_folder(args.model, threads=args.threads,
-                                      max_request_bytes=limits.max_request_bytes)
+                                      max_request_bytes=limits.max_request_bytes,
+                                      prepare_for=(*first_size, options) if prepare else None)
     except ModelError as error:
         print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
         return 1
