@@ -17,7 +17,8 @@ The check (left-right distance ``|DL(x) - DR(x - DL(x))| <= 1``) splits the pixe
 ones are bad-2 after filling against 8 % of the accepted ones (synthetic:20), so every rejected pixel
 ranks below an accepted one of the same peak ratio, by the factor ``REJECTED_WEIGHT``; among themselves the
 rejected ones keep the order of their peak ratio, which still ranks them better than chance. Chosen on the
-synthetic validation split (``synthetic:20``, default model) by the mean bad-2 of the sparsification curve
+synthetic validation split (``synthetic:20``, default model, the pipeline before the weighted median) by
+the mean bad-2 of the sparsification curve
 at 10 %, 20 % .. 100 % (lower is better; ties count as in a random order; oracle 2.98, random 19.42):
 
     peak ratio, 0.1 x on rejected (chosen)   5.53    peak ratio x (1 - lr / 2), 0 on rejected   5.77
