@@ -22,16 +22,20 @@ from service.evaluation import count_errors
 from service.evaluation.breakdown import Breakdown
 from service.evaluation.metrics import ErrorCounts
 from service.filtering import weighted_median
+from service.filtering.weighted_median import EDGE_SPREAD
 from service.matcher import Matcher, MatchOptions
 from training.data.evaluation_only import CONES_SPEC
 
 Filter = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-def _weighted(radius: int, sigma_colour: float, sigma_space: float, change: float = 0.0) -> Filter:
+def _weighted(radius: int, sigma_colour: float, sigma_space: float, change: float = 0.0,
+              spread: float = EDGE_SPREAD, passes: int = 1) -> Filter:
     def apply(disparity: np.ndarray, left: np.ndarray) -> np.ndarray:
-        filtered = weighted_median(disparity, left, radius=radius, sigma_colour=sigma_colour,
-                                   sigma_space=sigma_space)
+        filtered = disparity
+        for _ in range(passes):
+            filtered = weighted_median(filtered, left, radius=radius, sigma_colour=sigma_colour,
+                                       sigma_space=sigma_space, edge_spread=spread)
         return np.where(np.abs(filtered - disparity) > change, filtered, disparity) if change else filtered
     return apply
 
@@ -43,6 +47,10 @@ VARIANTS: dict[str, Filter] = {
     "weighted r 5, 10 / 5": _weighted(5, 10.0, 5.0),
     "weighted r 5, 20 / 5 (shipped)": _weighted(5, 20.0, 5.0),
     "weighted r 5, 20 / 5, t 1 px": _weighted(5, 20.0, 5.0, change=1.0),
+    "weighted r 5, 20 / 5, spread 0.5": _weighted(5, 20.0, 5.0, spread=0.5),
+    "weighted r 5, 20 / 5, spread 1.0": _weighted(5, 20.0, 5.0, spread=1.0),
+    "weighted r 5, 20 / 5, spread 2.5": _weighted(5, 20.0, 5.0, spread=2.5),
+    "weighted r 5, 20 / 5, two passes": _weighted(5, 20.0, 5.0, passes=2),
     "weighted r 5, 20 / 10": _weighted(5, 20.0, 10.0),
     "weighted r 7, 10 / 5": _weighted(7, 10.0, 5.0),
     "weighted r 7, 10 / inf": _weighted(7, 10.0, 1e6),
