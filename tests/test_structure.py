@@ -187,3 +187,11 @@ def test_the_runtime_ships_its_types_and_make_test_checks_them():
     make_test = (ROOT / "Makefile").read_text(encoding="utf-8").split("\ntest:")[1].split("\n\n")[0]
     assert [line.split()[0] for line in make_test.splitlines()[1:]] == [
         "$(BIN)/ruff", "$(BIN)/mypy", "$(BIN)/pytest"]
+
+
+def test_the_cli_reports_a_bad_model_folder_in_one_place():
+    # predict, eval and serve each printed their own copy; `adsm`'s main() now words it for all of them
+    # (tests/test_predict_cli.py, test_eval.py and test_faults.py hold each command to it).
+    wording = [path.name for path in sorted((ROOT / "service" / "cli").glob("*.py"))
+               if "error: bad model folder" in path.read_text(encoding="utf-8")]
+    assert wording == ["__init__.py"]

@@ -1,4 +1,10 @@
-"""`adsm` command line: one module per subcommand, each exposing ``add_parser(subparsers)``."""
+"""`adsm` command line: one module per subcommand, each exposing ``add_parser(subparsers)``.
+
+Errors are reported here, once for every subcommand: a model folder that cannot be loaded or served
+(:class:`~service.features.ModelError`), and bad input (``ValueError``, ``OSError``), each as one line
+``adsm: error: ...`` on stderr and exit status 1. A subcommand raises and leaves the wording to
+:func:`main`.
+"""
 
 from __future__ import annotations
 
@@ -46,15 +52,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     from service import jit
+    from service.features import ModelError
 
     jit.configure_cache()  # the compiled-kernel cache is chosen when the command starts, not at import
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except ModelError as error:  # whichever subcommand loaded the folder: its manifest, hashes or towers
+        print(f"adsm: error: bad model folder: {_one_line(error)}", file=sys.stderr)
+        return 1
     except (OSError, ValueError) as error:
         print(f"adsm: error: {error}", file=sys.stderr)
         return 1
+
+
+def _one_line(error: BaseException) -> str:
+    """The error's message on one line (an ONNX Runtime load error can span several)."""
+    return " ".join(str(error).split())
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ from service.datasets import open_dataset
 from service.evaluation import BAD_THRESHOLDS
 from service.evaluation.breakdown import format_breakdown
 from service.evaluation.sparsification import format_sparsification
-from service.features import ModelError
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -53,11 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from service.evaluation.evaluate import evaluate
     from service.matcher import Matcher
 
-    try:
-        matcher = Matcher.from_folder(args.model, threads=args.threads)
-    except ModelError as error:
-        print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
-        return 1
+    matcher = Matcher.from_folder(args.model, threads=args.threads)
     options = dataclasses.replace(match_options(args), confidence=args.confidence)
     matcher.warmup()
 

@@ -37,15 +37,23 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
 
 from service.cli.match_flags import add_match_flags, match_options
-from service.features import ModelError, default_model_dir, load_manifest
+from service.features import default_model_dir, load_manifest
 from service.io import FORMATS, format_for_path, image_size, read_pair, write_disparity
 from service.limits import ENVIRONMENT, RequestLimits, check_request
+from service.memory import DEFAULT_MAX_REQUEST_BYTES
+
+if TYPE_CHECKING:  # imported when a pair runs: `adsm --help` must not pay for Numba or OpenCV
+    from service.calibration import StereoCalibration
+    from service.calibration.rectify import Rectifier
+    from service.matcher import Matcher, MatchOptions, StereoResult
 
 _EXTENSION = {"png16": ".png", "npy": ".npy", "pfm": ".pfm", "color": ".png"}
 _LAYOUTS = (("left", "right"), ("image_2", "image_3"), ("image_02/data", "image_03/data"))
@@ -106,7 +114,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     limits.add_argument("--max-memory-mib", type=int, metavar="MIB",
                         help="peak memory of a pair by its plan (images, features, tower tiles, cost "
                         "volumes, results; default $ADSM_MAX_REQUEST_BYTES or "
-                        f"{defaults.max_request_bytes // 2**20})")
+                        f"{DEFAULT_MAX_REQUEST_BYTES // 2**20})")
     add("--timings", action="store_true", help="print stage timings (seconds) as one JSON line on stderr")
     parser.set_defaults(func=run)
 
@@ -162,11 +170,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--max-depth must be a positive number of metres, got {args.max_depth}")
     if (targets.depth or targets.pointcloud) and args.calib is None:
         raise ValueError("--depth and --pointcloud need --calib FILE (focal length and baseline)")
-    try:
-        manifest = load_manifest(args.model if args.model is not None else default_model_dir())
-    except ModelError as error:
-        print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
-        return 1
+    manifest = load_manifest(args.model if args.model is not None else default_model_dir())
     options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
     first_size = None
     if not batch:  # refuse before the model loads, from the headers alone
@@ -189,16 +193,13 @@ def run(args: argparse.Namespace) -> int:
     # Imported here so that `adsm --help` does not pay for Numba.
     from service.matcher import Matcher
 
-    try:
-        # Kernels load and cost-volume pages map in the background while the model loads and the images
-        # decode; the first call waits for the rest (Matcher.prepare; docs/performance.md, "First call").
-        prepare = first_size is not None and os.environ.get(PREPARE_ENV, "1").strip() != "0"
-        matcher = Matcher.from_folder(args.model, threads=args.threads,
-                                      max_request_bytes=limits.max_request_bytes,
-                                      prepare_for=(*first_size, options) if prepare else None)
-    except ModelError as error:
-        print(f"adsm: error: bad model folder: {error}", file=sys.stderr)
-        return 1
+    # Kernels load and cost-volume pages map in the background while the model loads and the images
+    # decode; the first call waits for the rest (Matcher.prepare; docs/performance.md, "First call").
+    prepare_for = None
+    if first_size is not None and os.environ.get(PREPARE_ENV, "1").strip() != "0":
+        prepare_for = (*first_size, options)
+    matcher = Matcher.from_folder(args.model, threads=args.threads,
+                                  max_request_bytes=limits.max_request_bytes, prepare_for=prepare_for)
     runner = _Runner(args, matcher, options, targets, calibration, limits,
                      loaded=time.perf_counter() - started)
     if not batch:
@@ -210,20 +211,20 @@ def run(args: argparse.Namespace) -> int:
 class _Runner:
     """Runs pairs through one loaded matcher and writes their files."""
 
-    def __init__(self, args, matcher, options, targets: _Targets, calibration, limits: RequestLimits, *,
-                 loaded: float) -> None:
+    def __init__(self, args: argparse.Namespace, matcher: Matcher, options: MatchOptions, targets: _Targets,
+                 calibration: StereoCalibration | None, limits: RequestLimits, *, loaded: float) -> None:
         self.args, self.matcher, self.options, self.targets = args, matcher, options, targets
         self.calibration = calibration
         self.limits = limits
-        self.rectifier = None
+        self.rectifier: Rectifier | None = None
         self.load_seconds = loaded
-        self._calibrations: dict[tuple[int, int], object] = {}
+        self._calibrations: dict[tuple[int, int], StereoCalibration] = {}
 
     def one(self, pair: _Pair) -> None:
         begun = time.perf_counter()
         size = _check_request(pair, self.matcher.manifest, self.limits, self.options)
-        left, right = read_pair(pair.left, pair.right, names=(f"left image {str(pair.left)!r}",
-                                                               f"right image {str(pair.right)!r}"))
+        left, right = read_pair(pair.left, _right_path(pair), names=(f"left image {str(pair.left)!r}",
+                                                                      f"right image {str(pair.right)!r}"))
         calibration = self._calibration_for(size)
         if calibration is not None and calibration.needs_rectification:
             if self.rectifier is None:
@@ -241,8 +242,9 @@ class _Runner:
         if write.validity is not None:
             _write(write.path(write.validity, name), lambda path: _write_validity(path, result.validity))
         if write.confidence is not None:
-            _write(write.path(write.confidence, name),
-                   lambda path: _write_confidence(path, result.confidence))
+            confidence = result.confidence
+            assert confidence is not None  # options.confidence follows --confidence (run)
+            _write(write.path(write.confidence, name), lambda path: _write_confidence(path, confidence))
         if calibration is not None and (write.depth or write.pointcloud):
             self._metric(name, calibration, result, left)
         if not self.args.no_check:
@@ -288,7 +290,7 @@ class _Runner:
         print(summary, file=sys.stderr)
         return 1 if failed else 0
 
-    def _calibration_for(self, size: tuple[int, int]):
+    def _calibration_for(self, size: tuple[int, int]) -> StereoCalibration | None:
         """The calibration for images of ``size``: as read, or scaled (Middlebury F/H/Q sizes)."""
         calibration = self.calibration
         if calibration is None or calibration.size is None or calibration.size == size:
@@ -304,7 +306,8 @@ class _Runner:
             self._calibrations[size] = calibration.scaled(factor_x)
         return self._calibrations[size]
 
-    def _metric(self, name: str, calibration, result, left: np.ndarray) -> None:
+    def _metric(self, name: str, calibration: StereoCalibration, result: StereoResult,
+                left: np.ndarray) -> None:
         from service.geometry import (
             depth_format_for_path,
             depth_from_disparity,
@@ -328,7 +331,7 @@ class _Runner:
                                            cy=calibration.cy, focal_y_px=calibration.focal_y_px)
             _write(self.targets.path(self.targets.pointcloud, name), lambda target: target.write_bytes(body))
 
-    def _diagnose(self, pair: _Pair, left: np.ndarray, right: np.ndarray, result) -> None:
+    def _diagnose(self, pair: _Pair, left: np.ndarray, right: np.ndarray, result: StereoResult) -> None:
         from service.calibration.pair_check import check_pair
         from service.validation.codes import Validity
 
@@ -426,7 +429,8 @@ def _targets(args: argparse.Namespace, batch: bool) -> _Targets:
     return _Targets(disparity, output_format, args.validity, args.confidence, args.depth, args.pointcloud)
 
 
-def _check_request(pair: _Pair, manifest: dict, limits: RequestLimits, options) -> tuple[int, int]:
+def _check_request(pair: _Pair, manifest: dict[str, Any], limits: RequestLimits, options: MatchOptions
+                   ) -> tuple[int, int]:
     """The pair's (height, width) once its headers pass every rule the server applies (service/limits.py):
     sizes, range, pixels, cost cells, memory plan; a LimitError or DisparityRangeError otherwise."""
     size = _check_sizes(pair)
@@ -437,7 +441,7 @@ def _check_request(pair: _Pair, manifest: dict, limits: RequestLimits, options) 
 
 def _check_sizes(pair: _Pair) -> tuple[int, int]:
     left_size = _size(pair.left, "left")
-    right_size = _size(pair.right, "right")
+    right_size = _size(_right_path(pair), "right")
     if left_size != right_size:
         raise ValueError(
             f"left and right images differ in size: {left_size[1]}x{left_size[0]} vs "
@@ -446,13 +450,19 @@ def _check_sizes(pair: _Pair) -> tuple[int, int]:
     return left_size
 
 
+def _right_path(pair: _Pair) -> Path:
+    if pair.right is None:
+        raise ValueError(f"no right image named like {pair.left.name}")
+    return pair.right
+
+
 def _size(path: Path, side: str) -> tuple[int, int]:
     if not path.is_file():
         raise ValueError(f"{side} image {str(path)!r} does not exist or is not a file")
     return image_size(path, name=f"{side} image {str(path)!r}")
 
 
-def _write(path: Path, writer) -> None:
+def _write(path: Path, writer: Callable[[Path], object]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     writer(path)
 

@@ -53,7 +53,8 @@ def _env_port() -> int:
 
 
 def _check_model(settings: Settings) -> str | None:
-    """Load the model folder and warm it up once, before the port opens; the problem in one line, if any.
+    """Load the model folder and warm it up once, before the port opens: a warm-up failure in one line, or
+    None; a folder that cannot load raises ModelError, which ``adsm`` reports as every command does.
 
     Hashes and schema (load), the towers against the manifest's channels and receptive field, then the
     whole pipeline on a tiny pair (Matcher.warmup): a folder that cannot serve, e.g. a hand-edited
@@ -65,8 +66,8 @@ def _check_model(settings: Settings) -> str | None:
 
     try:
         Matcher.from_folder(settings.model_dir, threads=settings.threads).warmup()
-    except ModelError as error:
-        return " ".join(str(error).split())
+    except ModelError:
+        raise  # a bad folder is reported like every command's (service/cli/__init__.py)
     except Exception as error:  # any warm-up failure: the same one line, never a traceback
         logger.debug("warm-up failed", exc_info=True)
         return " ".join(f"model warm-up failed: {type(error).__name__}: {error}".split())
