@@ -169,7 +169,7 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
     if limits.max_request_bytes is not None and plan.peak_bytes > limits.max_request_bytes:
         raise LimitError(
             f"{width} x {height} pixels x {span.count} disparities would need {plan.describe()}, over "
-            f"{who}'s limit of {limits.max_request_bytes} bytes per request"
+            f"{who}'s limit of {limits.max_request_bytes / 2**20:.0f} MiB per request"
             f"{limits._named('max_request_bytes')}; send smaller images or lower max_disparity"
         )
     if limits.max_pixels is not None:

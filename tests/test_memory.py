@@ -95,7 +95,7 @@ def test_cli_refuses_a_pair_over_the_memory_limit_in_one_line(tmp_path, capsys):
     assert status == 1
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("adsm: error: "), err
-    assert "over the limit of 8 MiB" in err and "Traceback" not in err
+    assert "limit of 8 MiB per request" in err and "Traceback" not in err
     assert not (tmp_path / "d.png").exists()
 
 
