@@ -16,7 +16,7 @@ from PIL import Image
 
 from service.api import Settings, create_app
 from service.api.app import DESCRIPTION
-from service.api.routes_ops import public_manifest
+from service.api.routes.ops import public_manifest
 from service.features import default_model_dir, load_manifest
 from service.io import read_disparity
 from service.validation import Validity

@@ -11,8 +11,8 @@ import pytest
 from PIL import Image
 
 from service.api import Settings
-from service.api.encoding import negotiate_format, server_timing
-from service.api.geometry import depth_from_disparity, depth_png16, point_cloud_ply
+from service.api.routes.encoding import negotiate_format, server_timing
+from service.api.routes.geometry import depth_from_disparity, depth_png16, point_cloud_ply
 from service.cli import main
 
 
@@ -115,7 +115,7 @@ def test_serve_refuses_bad_options(capsys, monkeypatch) -> None:
 
 
 def test_model_manifest_hides_absolute_paths() -> None:
-    from service.api.routes_ops import public_manifest
+    from service.api.routes.ops import public_manifest
 
     manifest = {"training": {"command": "python -m training.train --out /home/alice/runs/x --init-from "
                              "runs/fast/best.pt --data kitti2015:/data/kitti/training"},

@@ -19,7 +19,7 @@ import pytest
 from conftest import TINY_PAIR, InstantMatcher, disparity_scope, ready_client
 
 from service.api import Settings, create_app
-from service.api.body_timeout import BodyDeadline
+from service.api.middleware.body_timeout import BodyDeadline
 
 pytestmark = pytest.mark.anyio
 

@@ -24,7 +24,7 @@ from conftest import InstantMatcher
 from PIL import Image
 
 from service.api import Settings, create_app
-from service.api.encoding import multipart_mixed, validity_png
+from service.api.routes.encoding import multipart_mixed, validity_png
 from service.client import (
     AnswerFormatError,
     BadRequestError,

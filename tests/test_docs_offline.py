@@ -88,7 +88,8 @@ async def test_pages_reference_only_the_service_and_every_reference_answers() ->
             "/static/vendor/swagger-ui/swagger-ui-bundle.js", "/static/vendor/swagger-ui/swagger-ui.css",
             "/static/vendor/swagger-ui/favicon-32x32.png", "/openapi.json"}
         assert '"validatorUrl": null' in docs  # no badge fetched from validator.swagger.io
-        # ReDoc is not served (docs_page.py says why); FastAPI's OAuth2 redirect page is not needed.
+        # ReDoc is not served (service/api/routes/docs.py says why); FastAPI's OAuth2 redirect page is not
+        # needed.
         assert (await client.get("/redoc")).status_code == 404
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import require_module
 
-from service.api import geometry as api_geometry
+from service.api.routes import geometry as api_geometry
 from service.calibration import StereoCalibration
 from service.geometry import (
     depth_format_for_path,

@@ -22,7 +22,7 @@ from conftest import TINY_PAIR, InstantMatcher, disparity_scope
 from PIL import Image
 
 from service.api import Settings, create_app
-from service.api.delivery import CHUNK_BYTES, AnswerDelivery, Unsent
+from service.api.middleware.delivery import CHUNK_BYTES, AnswerDelivery, Unsent
 
 TESTS = Path(__file__).resolve().parent
 ROOT = TESTS.parent

@@ -195,3 +195,21 @@ def test_the_cli_reports_a_bad_model_folder_in_one_place():
     wording = [path.name for path in sorted((ROOT / "service" / "cli").glob("*.py"))
                if "error: bad model folder" in path.read_text(encoding="utf-8")]
     assert wording == ["__init__.py"]
+
+
+def test_the_http_service_layers_point_one_way():
+    # service/api/: app.py wires routes/ and middleware/; routes ask the service object (inference.py) for
+    # a match and never import middleware; middleware guards every request whatever the route, so it
+    # imports neither routes nor the service object. (docs/architecture.md, "Who may import whom")
+    graph = import_graph()
+    routes = {name for name in graph if name.startswith("service.api.routes.")}
+    middleware = {name for name in graph if name.startswith("service.api.middleware.")}
+    service_object = {"service.api.inference", "service.api.queue", "service.api.refusals"}
+    assert {"service.api.routes.stereo", "service.api.routes.ops"} <= routes
+    assert {"service.api.middleware.delivery", "service.api.middleware.metrics"} <= middleware
+    offences = [f"{name} imports {target}" for name in sorted(routes) for target in graph[name] & middleware]
+    offences += [f"{name} imports {target}" for name in sorted(middleware)
+                 for target in graph[name] & (routes | service_object)]
+    offences += [f"{name} imports {target}" for name in sorted(set(graph) - routes - {"service.api.app"})
+                 for target in graph[name] & routes]
+    assert not offences, "\n".join(offences)

@@ -1,5 +1,9 @@
 """The FastAPI application: wiring only (settings, lifespan, middleware, routes, static files).
 
+What it wires lives beside it: the service object (inference.py, with queue.py and refusals.py), the
+error table (errors.py), the routes (routes/: stereo, ops, docs) and the ASGI middleware (middleware/),
+listed below from the outermost in.
+
 Start-up: the model folder is loaded and its hashes verified before the server accepts connections
 (a bad model fails the start, loudly); the JIT warm-up then runs in a thread while the server already
 answers /healthz, and /readyz turns 200 when it is done. SIGTERM drains (service/api/draining.py).
@@ -18,17 +22,17 @@ from starlette.middleware import Middleware
 from starlette.staticfiles import StaticFiles
 
 import service
-from service.api import docs_page, routes_disparity, routes_ops
-from service.api.body_timeout import BodyDeadline
-from service.api.delivery import AnswerDelivery
 from service.api.draining import install_sigterm_drain
 from service.api.errors import install_error_handlers
-from service.api.framing import RequestFraming
 from service.api.inference import InferenceService
-from service.api.limits import BodySizeLimit
-from service.api.metrics import MetricsMiddleware
-from service.api.request_id import RequestIdMiddleware
-from service.api.routes_ops import STATIC_DIR
+from service.api.middleware.body_size import BodySizeLimit
+from service.api.middleware.body_timeout import BodyDeadline
+from service.api.middleware.delivery import AnswerDelivery
+from service.api.middleware.framing import RequestFraming
+from service.api.middleware.metrics import MetricsMiddleware
+from service.api.middleware.request_id import RequestIdMiddleware
+from service.api.routes import docs, ops, stereo
+from service.api.routes.ops import STATIC_DIR
 from service.api.settings import Settings
 from service.protocols import StereoMatcher
 
@@ -65,7 +69,7 @@ def create_app(settings: Settings | None = None, *, matcher: StereoMatcher | Non
         version=service.__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
-        docs_url=None,  # served from vendored files instead of a CDN (service/api/docs_page.py)
+        docs_url=None,  # served from vendored files instead of a CDN (service/api/routes/docs.py)
         redoc_url=None,
         middleware=[
             # Outermost, so that its send is the server's: every answer leaves in bounded pieces.
@@ -79,9 +83,9 @@ def create_app(settings: Settings | None = None, *, matcher: StereoMatcher | Non
     )
     app.state.inference = inference
     install_error_handlers(app)
-    app.include_router(routes_disparity.router)
-    app.include_router(routes_ops.router)
-    app.include_router(docs_page.router)
+    app.include_router(stereo.router)
+    app.include_router(ops.router)
+    app.include_router(docs.router)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     return app
 

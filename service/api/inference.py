@@ -1,7 +1,7 @@
 """The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
 
 Pipeline of a stereo request: admission (QueueFull at once when the queue is full) -> multipart body (408
-when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/body_timeout.py) -> both image headers:
+when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/middleware/body_timeout.py) -> both image headers:
 sizes, pixel limit, then the request's memory plan (service/memory.py) against ADSM_MAX_REQUEST_BYTES
 and its tower work against ADSM_MAX_PIXELS, all before a pixel is decoded -> decode both images in a
 thread -> wait for the inference slot -> match in a thread -> the route encodes. Each step's seconds go
@@ -26,8 +26,8 @@ from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
 from service import jit
-from service.api.delivery import Unsent
 from service.api.metrics import ServiceMetrics
+from service.api.middleware.delivery import Unsent
 from service.api.queue import InferenceSlot, QueueFull
 from service.api.refusals import (
     WARMING_RETRY_AFTER_S,
@@ -71,7 +71,7 @@ class InferenceService:
         self.ready = False
         self.failure: str | None = None
         self.draining = False  # SIGTERM received: admitted requests finish, new ones get 503
-        self.unsent = Unsent()  # answer bytes slow clients have not taken yet (service/api/delivery.py)
+        self.unsent = Unsent()  # answer bytes slow clients have not taken yet (middleware/delivery.py)
         self.metrics.unsent.set_function(lambda: self.unsent.bytes)
 
     @property

@@ -1,5 +1,8 @@
 """Prometheus metrics: requests and latency by route and status, stage timings, queue depth, rejections.
 
+:class:`ServiceMetrics` holds them; the middleware that counts and times every response is
+``service/api/middleware/metrics.py``.
+
 prometheus-client (pure Python, no dependencies) writes the text exposition format, whose escaping
 and histogram conventions (cumulative ``le`` buckets, ``_sum``, ``_count``) are easy to get subtly
 wrong by hand. Each app owns its registry, so several apps in one process (tests) do not collide.
@@ -7,8 +10,6 @@ Labels never carry request data: the route is the path template, never the raw p
 """
 
 from __future__ import annotations
-
-import time
 
 from prometheus_client import (
     CollectorRegistry,
@@ -19,7 +20,6 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api.queue import InferenceSlot
 
@@ -69,35 +69,3 @@ class ServiceMetrics:
     def exposition(self) -> bytes:
         return generate_latest(self.registry)
 
-
-class MetricsMiddleware:
-    """Count and time every HTTP response, labelled by the matched route template."""
-
-    def __init__(self, app: ASGIApp, *, metrics: ServiceMetrics) -> None:
-        self.app = app
-        self.metrics = metrics
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        started = time.perf_counter()
-        status = 500  # an exception before the response started ends as a 500
-
-        async def status_send(message: Message) -> None:
-            nonlocal status
-            if message["type"] == "http.response.start":
-                status = message["status"]
-            await send(message)
-
-        try:
-            await self.app(scope, receive, status_send)
-        finally:
-            route = scope.get("route")
-            labels = {
-                "method": scope["method"],
-                "route": getattr(route, "path", None) or "unmatched",
-                "status": str(status),
-            }
-            self.metrics.requests.labels(**labels).inc()
-            self.metrics.latency.labels(**labels).observe(time.perf_counter() - started)

@@ -46,4 +46,4 @@ class Draining(Unavailable):
 
 
 class Backlogged(Unavailable):
-    """Slow clients have left more answer bytes untaken than the service may hold (delivery.py)."""
+    """Slow clients have left more answer bytes untaken than the service may hold (middleware/delivery.py)."""

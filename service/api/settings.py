@@ -31,7 +31,7 @@ class Settings:
     # Seconds a request may take to deliver its whole body (408 after): an upload holds a queue place,
     # so without a deadline a few trickling clients could keep every place and everyone else at 503.
     body_timeout_s: float = 30.0
-    # Seconds a client has to take a whole answer, from its first byte (service/api/delivery.py): a client
+    # Seconds a client has to take a whole answer, from its first byte (api/middleware/delivery.py): a client
     # that does not read would otherwise pin its answer in memory for as long as it keeps the socket open.
     write_timeout_s: float = 60.0
     # Answer bytes not yet taken by slow clients, over all connections; above it new stereo requests get 503.

@@ -1,7 +1,7 @@
 """Metric geometry of a rectified pair: depth, point clouds and their file formats.
 
 The one implementation used by ``adsm predict``, the Python API and the HTTP routes
-(``service.api.geometry`` re-exports it).
+(``service.api.routes.geometry`` re-exports it).
 
 >>> import numpy as np
 >>> from service.geometry import depth_from_disparity, point_cloud

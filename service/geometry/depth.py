@@ -1,6 +1,7 @@
 """Disparity -> depth for a rectified pair: ``z = f B / (d + doffs)`` (paper eq. 1-2, Middlebury's doffs).
 
-One implementation for the CLI, the Python API and the HTTP routes (``service.api.geometry`` imports it).
+One implementation for the CLI, the Python API and the HTTP routes (``service.api.routes.geometry``
+imports it).
 """
 
 from __future__ import annotations

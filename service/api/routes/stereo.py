@@ -11,16 +11,16 @@ from fastapi.dependencies.models import Dependant
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
-from service.api import geometry
-from service.api.encoding import (
+from service.api.errors import error_responses
+from service.api.inference import InferenceService, StereoMatch
+from service.api.routes import geometry
+from service.api.routes.encoding import (
     FILE_EXTENSIONS,
     multipart_mixed,
     negotiate_format,
     server_timing,
     validity_png,
 )
-from service.api.errors import error_responses
-from service.api.inference import InferenceService, StereoMatch
 from service.io import encode_disparity, media_type
 from service.matcher import MatchOptions
 from service.optimization import MAX_PENALTY

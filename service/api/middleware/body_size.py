@@ -11,7 +11,7 @@ from starlette.exceptions import HTTPException
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api.body_guard import run_guarded
+from service.api.middleware.body_guard import run_guarded
 
 
 class BodyTooLarge(HTTPException):

@@ -14,7 +14,7 @@ from service.api.inference import InferenceService, warming_headers
 from service.api.metrics import CONTENT_TYPE
 from service.features.card import model_card
 
-STATIC_DIR = Path(__file__).with_name("static")
+STATIC_DIR = Path(__file__).resolve().parent.parent / "static"  # service/api/static
 
 router = APIRouter()
 

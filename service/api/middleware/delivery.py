@@ -12,7 +12,7 @@ read a 15 MB point cloud held +263 MiB). Now:
   else the delivery stops, the connection is closed (uvicorn logs "ASGI callable returned without
   completing response") and the answer is released;
 - :class:`Unsent` counts the bytes of every answer not yet taken by a socket; while it is over
-  ``ADSM_MAX_UNSENT_BYTES`` new stereo requests are answered 503 + ``Retry-After`` (inference.py), so
+  ``ADSM_MAX_UNSENT_BYTES`` new stereo requests are answered 503 + ``Retry-After`` (api/inference.py), so
   slow readers cannot pile up answers in memory faster than the deadline frees them.
 """
 

@@ -7,7 +7,7 @@ forever. The clock starts when the app first reads the body and covers every chu
 reads after that (Starlette polls for a disconnect while a request waits for the inference slot) pass
 through untouched, so a long queue wait is never mistaken for a slow upload.
 
-The 408 is raised inside the route's body read, like the streaming 413 of ``limits.py``: the route's
+The 408 is raised inside the route's body read, like the streaming 413 of ``body_size.py``: the route's
 admission block ends (the place is given back) and the app's exception handlers answer with the usual
 JSON ``detail``. The rest of the body is still on the connection, so the answer asks to close it.
 """
@@ -18,7 +18,7 @@ import anyio
 from starlette.exceptions import HTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.api.body_guard import run_guarded
+from service.api.middleware.body_guard import run_guarded
 
 
 class BodyTimedOut(HTTPException):
