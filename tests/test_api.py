@@ -328,7 +328,7 @@ def assert_error(response: httpx.Response, status: int, *fragments: str) -> None
         ("/disparity", {"max_disparity": 64}, "ADSM_MAX_DISPARITY"),
         ("/depth", {"baseline_m": 0.1}, "focal_px"),
         ("/depth", {"focal_px": -5, "baseline_m": 0.1}, "focal_px"),
-        ("/depth", {"focal_px": 5, "baseline_m": 0.1, "format": "pfm"}, "format"),
+        ("/depth", {"focal_px": 5, "baseline_m": 0.1, "format": "color"}, "format"),
         ("/pointcloud", {"focal_px": 5, "baseline_m": "far"}, "baseline_m"),
     ],
 )
@@ -339,7 +339,7 @@ async def test_bad_parameters_are_400(
 
 
 async def test_validation_errors_list_each_problem(client: httpx.AsyncClient) -> None:
-    response = await client.post("/depth", params={"focal_px": "x"}, files=PAIR)
+    response = await client.post("/depth", params={"focal_px": "x", "baseline_m": "y"}, files=PAIR)
     assert_error(response, 400, "focal_px", "baseline_m")
     assert {tuple(problem["loc"]) for problem in response.json()["errors"]} == {
         ("query", "focal_px"), ("query", "baseline_m")

@@ -153,6 +153,32 @@ def matches_the_pair(response: httpx.Response) -> None:
     assert abs(float(np.nanmedian(interior)) - SHIFT) < 0.5, np.nanmedian(interior)
 
 
+CALIB = (f"cam0=[100 0 47.5; 0 100 31.5; 0 0 1]\ncam1=[100 0 47.5; 0 100 31.5; 0 0 1]\nbaseline=100\n"
+         f"width={WIDTH}\nheight={HEIGHT}\n").encode()
+CAMERA = {**VALID_QUERY, "focal_px": 100, "baseline_m": 0.1}
+
+
+def with_calib(data: bytes = CALIB, name: str = "calib.txt") -> dict[str, Any]:
+    return {**PAIR, "calib": (name, data, "application/octet-stream")}
+
+
+def has_parts(*names: str) -> Callable[[httpx.Response], None]:
+    def check(response: httpx.Response) -> None:
+        assert response.headers["content-type"].startswith("multipart/mixed")
+        boundary = response.headers["content-type"].split("boundary=")[1].strip('"')
+        found = [part.split(b'name="')[1].split(b'"')[0].decode()
+                 for part in response.content.split(b"--" + boundary.encode())[1:-1]]
+        assert found == list(names), found
+
+    return check
+
+
+def depth_map(response: httpx.Response) -> None:
+    depth = np.load(io.BytesIO(response.content), allow_pickle=False)
+    assert depth.shape == (HEIGHT, WIDTH)
+    assert np.nanmedian(depth[8:-8, 16:-8]) == pytest.approx(10 / SHIFT, rel=0.1)  # f B / d, f B = 10 m px
+
+
 def png16_answer(response: httpx.Response) -> None:
     assert response.headers["x-disparity-format"] == "png16"
     matches_the_pair(response)
@@ -263,7 +289,7 @@ CATALOG = [
          params={"max_disparty": 16}),
     Case("unknown format", 400, ("format",), params={**VALID_QUERY, "format": "jpeg"}),
     Case("format of another route", 400, ("format",), path="/depth",
-         params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "format": "pfm"}),
+         params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "format": "color"}),
     # --- issue 15: sizes that pass the pixel limit but not the work or memory model, containers, params -----
     # Header-only PNGs (decoding them would fail): a 413 shows the plan was judged before decoding.
     Case("one row as wide as the pixel limit", 413, ("padded pixels", "square image of ADSM_MAX_PIXELS"),
@@ -284,6 +310,68 @@ CATALOG = [
          check=shape_is(64, 96)),
     Case("focal_px and baseline_m tiny", 400, ("focal_px", "baseline_m"), path="/depth",
          params={**VALID_QUERY, "focal_px": "1e-30", "baseline_m": "1e-30"}),
+    # --- issue 13 item 3: search start, maps, camera, calibration file -------------------------------------
+    Case("min_disparity at the width", 400, ("min_disparity 96", "-95..95"),
+         params={**VALID_QUERY, "min_disparity": 96}),
+    Case("min_disparity + range beyond the width", 400, ("max_disparity 16 exceeds the image width 96",
+                                                         "from min_disparity 90"),
+         params={**VALID_QUERY, "min_disparity": 90}),
+    Case("min_disparity fractional", 400, ("min_disparity",), params={**VALID_QUERY, "min_disparity": "2.5"}),
+    Case("min_disparity 10^30", 400, ("min_disparity",), params={**VALID_QUERY, "min_disparity": 10**30}),
+    Case("negative min_disparity", 200, params={**VALID_QUERY, "min_disparity": -8}, check=matches_the_pair),
+    Case("confidence not a boolean", 400, ("confidence",), params={**VALID_QUERY, "confidence": "sometimes"}),
+    Case("confidence on /depth", 400, ("unknown query parameter 'confidence'",), path="/depth",
+         params={**CAMERA, "confidence": "true"}),
+    Case("confidence and validity parts", 200,
+         params={**VALID_QUERY, "confidence": "true", "validity": "true"},
+         check=has_parts("disparity", "validity", "confidence")),
+    Case("colormap_range without format=color", 400, ("colormap_range", "format=color"),
+         params={**VALID_QUERY, "colormap_range": "0,16"}),
+    Case("colormap_range reversed", 400, ("below",),
+         params={**VALID_QUERY, "format": "color", "colormap_range": "16,0"}),
+    Case("colormap_range not numbers", 400, ("colormap_range",),
+         params={**VALID_QUERY, "format": "color", "colormap_range": "near,far"}),
+    Case("colormap_range absurd", 400, ("colormap_range", "finite"),
+         params={**VALID_QUERY, "format": "color", "colormap_range": "1" + "0" * 30 + ",2" + "0" * 30}),
+    Case("colormap_range too long", 400, ("colormap_range",),
+         params={**VALID_QUERY, "format": "color", "colormap_range": "1" * 70 + ",2"}),
+    Case("max_depth zero", 400, ("max_depth", "greater than 0"), path="/pointcloud",
+         params={**CAMERA, "max_depth": 0}),
+    Case("max_depth inf", 400, ("max_depth", "finite"), path="/pointcloud",
+         params={**CAMERA, "max_depth": "inf"}),
+    Case("drop_filled not a boolean", 400, ("drop_filled",), path="/depth",
+         params={**CAMERA, "drop_filled": "some"}),
+    Case("doffs nan", 400, ("doffs",), path="/depth", params={**CAMERA, "doffs": "nan"}),
+    Case("doffs on /disparity", 400, ("unknown query parameter 'doffs'",),
+         params={**VALID_QUERY, "doffs": 2}),
+    Case("no camera", 400, ("focal_px and baseline_m", "calib"), path="/depth"),
+    Case("calib file and focal_px", 400, ("calib file or focal_px, baseline_m", "not both"), path="/depth",
+         params=CAMERA, files=with_calib()),
+    Case("cx beside a calib file", 400, ("cx", "not both"), path="/pointcloud",
+         params={**VALID_QUERY, "cx": 3}, files=with_calib()),
+    Case("calib_units without a file", 400, ("calib_units", "'calib'"), path="/depth",
+         params={**CAMERA, "calib_units": "mm"}),
+    Case("calib_units unknown", 400, ("calib_units",), path="/depth",
+         params={**VALID_QUERY, "calib_units": "inch"}, files=with_calib()),
+    Case("calib_rectified not a boolean", 400, ("calib_rectified",), path="/depth",
+         params={**VALID_QUERY, "calib_rectified": "yes please"}, files=with_calib()),
+    Case("diagnostics not a boolean", 400, ("diagnostics",), params={**VALID_QUERY, "diagnostics": "maybe"}),
+    Case("calib not text", 400, ("calib.txt: not a text file",), path="/depth",
+         files=with_calib(b"\xff\xd8\xff\xe0 a jpeg?")),
+    Case("calib of no known format", 400, ("notes.txt: unknown calibration format",), path="/depth",
+         files=with_calib(b"f = 700 px, B = 10 cm", "notes.txt")),
+    Case("calib malformed opencv", 400, ("rig.yml (OpenCV)",), path="/depth",
+         files=with_calib(b"%YAML:1.0\n---\nP1: [1, 2\n  : : ]]\n", "rig.yml")),
+    Case("calib for other images", 400, ("calibrated for 96x50 images, got 96x64",), path="/depth",
+         files=with_calib(CALIB.replace(b"height=64", b"height=50"))),
+    Case("calib as a text field", 400, ("'calib' must be a file",), path="/depth",
+         files={**PAIR, "calib": (None, CALIB.decode())}),
+    Case("calib twice", 400, ("files",), path="/depth",
+         files=[*PAIR.items(), ("calib", ("a.txt", CALIB, "text/plain")),
+                ("calib", ("b.txt", CALIB, "text/plain"))]),
+    Case("calib on /disparity", 200, files=with_calib(), check=matches_the_pair),
+    Case("calib on /depth", 200, path="/depth", params=VALID_QUERY, files=with_calib(), check=depth_map),
+    Case("camera by hand on /depth", 200, path="/depth", params=CAMERA, check=depth_map),
     Case("upper-case multipart media type", 200, content=multipart_body(),
          headers={"Content-Type": "MULTIPART/FORM-DATA; boundary=x"}, check=png16_answer),
     # --- Accept: anything unknown gets the documented default, errors stay JSON -----------------------------

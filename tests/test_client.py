@@ -29,6 +29,7 @@ from service.client import (
     AnswerFormatError,
     BadRequestError,
     DisparityMaps,
+    PairWarning,
     RequestTimeoutError,
     RetryPolicy,
     ServerBusyError,
@@ -38,6 +39,7 @@ from service.client import (
 )
 from service.client.answers import multipart_parts
 from service.client.retry import retry_after_seconds
+from service.geometry import depth_from_disparity
 from service.io import encode_disparity
 from service.matcher import MatchOptions
 
@@ -149,6 +151,46 @@ def test_depth_and_point_cloud(real) -> None:
     np.testing.assert_allclose(cloud.points[:, 2], depth[rows, cols], rtol=1e-6)
     np.testing.assert_allclose(cloud.points[:, 0], (cols - 10.0) * depth[rows, cols] / 700.0, rtol=1e-5)
     np.testing.assert_array_equal(cloud.colors, LEFT[rows, cols])
+
+
+def test_confidence_from_the_service(real) -> None:
+    client, matcher = real
+    expected = matcher(LEFT, RIGHT, MatchOptions(max_disparity=16, confidence=True))
+    maps = client.disparity(LEFT, RIGHT, max_disparity=16, confidence=True)  # npy: the exact floats
+    assert maps.validity is None and maps.confidence.dtype == np.float32
+    np.testing.assert_array_equal(maps.confidence, expected.confidence)
+    np.testing.assert_array_equal(maps.disparity, expected.disparity)
+    both = client.disparity(LEFT, RIGHT, max_disparity=16, confidence=True, validity=True, format="png16")
+    np.testing.assert_allclose(both.confidence, expected.confidence, atol=0.5 / 255 + 1e-6)  # 8-bit PNG
+    np.testing.assert_array_equal(both.validity, expected.validity)
+    assert 0 < float(np.mean(maps.confidence)) < 1
+
+
+def test_calibration_file_and_pair_warnings(real, tmp_path: Path) -> None:
+    client, matcher = real
+    disparity = matcher(LEFT, RIGHT, MatchOptions(max_disparity=16)).disparity
+    calib = tmp_path / "calib.txt"
+    calib.write_text(f"cam0=[700 0 40; 0 700 24; 0 0 1]\ncam1=[700 0 42; 0 700 24; 0 0 1]\nbaseline=100\n"
+                     f"width={WIDTH}\nheight={HEIGHT}\n")
+    expected = depth_from_disparity(disparity, focal_px=700, baseline_m=0.1, doffs=2)
+    for given in (calib, str(calib), calib.read_bytes()):
+        depth = client.depth(LEFT, RIGHT, calib=given, max_disparity=16)
+        np.testing.assert_allclose(depth, expected, rtol=1e-6)
+    cloud = client.pointcloud(LEFT, RIGHT, calib=calib, max_disparity=16)
+    rows, cols = np.nonzero(np.isfinite(expected))
+    np.testing.assert_allclose(cloud.points[:, 0], (cols - 40) * expected[rows, cols] / 700,
+                               rtol=1e-5, atol=1e-7)
+    twice = {"focal_px": 700.0, "baseline_m": 0.1, "calib": calib}
+    for camera, fragment in (({}, "neither"), (twice, "both"), ({"focal_px": 700.0}, "together")):
+        with pytest.raises(ValueError, match=fragment):
+            client.depth(LEFT, RIGHT, **camera)
+    with pytest.raises(BadRequestError, match="unknown calibration format"):
+        client.depth(LEFT, RIGHT, calib=b"not a calibration")
+    # The service's pair warnings arrive as Python warnings; the answer still comes back
+    with pytest.warns(PairWarning, match="^swapped: the pair looks swapped") as caught:
+        swapped = client.disparity(RIGHT, LEFT, max_disparity=16)
+    assert swapped.shape == (HEIGHT, WIDTH) and caught[0].message.kind == "swapped"
+    assert caught[0].filename == __file__  # pointed at the caller's line
 
 
 def test_bad_requests_raise_with_the_service_detail(real) -> None:
@@ -310,8 +352,8 @@ def test_multipart_parts_round_trip_the_service_encoder() -> None:
 
 
 def test_confidence_part_is_decoded_when_the_service_sends_it() -> None:
-    """The HTTP confidence part is issue 13's item 3 (not served yet): a fake sends it as the validity part
-    is sent, npy float32 or 8-bit PNG (confidence x 255), and the client returns it."""
+    """Both forms of the confidence part (npy float32, 8-bit PNG = confidence x 255), and a missing part,
+    from a fake (the real service's part: test_confidence_from_the_service)."""
     disparity = np.full((2, 3), 5.0, np.float32)
     confidence = np.array([[0.0, 0.5, 1.0], [0.25, 0.75, 1.0]], np.float32)
     buffer = io.BytesIO()

@@ -181,8 +181,9 @@ def test_every_stereo_parameter_is_bounded() -> None:
                 if kind in ("number", "integer") and parameter["name"] != "max_disparity":
                     assert {"maximum", "exclusiveMaximum"} & set(variant), (path, parameter["name"])
                     assert {"minimum", "exclusiveMinimum"} & set(variant), (path, parameter["name"])
-                elif kind == "string":
-                    assert "enum" in variant, (path, parameter["name"])
+                elif kind == "string":  # a choice, or a bounded pattern (colormap_range's "low,high")
+                    bounded = "enum" in variant or {"pattern", "maxLength"} <= set(variant)
+                    assert bounded, (path, parameter["name"])
                 else:
                     assert kind in ("boolean", "null", "integer"), (path, parameter["name"], kind)
     # max_disparity's upper bound is a setting (ADSM_MAX_DISPARITY), checked per request: see

@@ -4,8 +4,9 @@ The rule (documented in the OpenAPI schema and docs/service.md):
 
 - 400: anything wrong with the request itself: a query parameter of the wrong type or out of range,
   a missing multipart field, malformed multipart, images of different sizes, a disparity range the
-  image cannot hold. FastAPI's own 422 for request validation is folded into 400 so that a client has
-  one code to handle; ``errors`` then lists each problem with its location.
+  image cannot hold, a camera given twice or not at all, a calibration file that cannot be used.
+  FastAPI's own 422 for request validation is folded into 400 so that a client has one code to handle;
+  ``errors`` then lists each problem with its location.
 - 408: the body did not arrive in full within ``ADSM_BODY_TIMEOUT_S`` (a stalled or trickled upload).
 - 413: body over the byte limit, an image over the pixel limit (checked before decoding), or a job
   whose cost volume (width x height x disparities) is over the cell limit, whose memory plan is over
@@ -29,6 +30,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 
 from service.api.refusals import BadRequest, ClientGone, Unavailable
+from service.calibration import CalibrationError
 from service.io import ImageDecodeError, ImageTooLargeError
 from service.limits import DisparityRangeError, LimitError
 
@@ -36,6 +38,7 @@ from service.limits import DisparityRangeError, LimitError
 # are looked up along the class's MRO), so ImageTooLargeError is 413 although it is an ImageDecodeError.
 STATUS_OF: dict[type[Exception], int] = {
     BadRequest: 400,            # malformed multipart, images of different sizes, options refused
+    CalibrationError: 400,      # a calib file that cannot be read or does not fit the images
     DisparityRangeError: 400,   # a range this image or this server's ADSM_MAX_DISPARITY cannot take
     LimitError: 413,            # cost-volume cells, memory plan, tower work
     ImageTooLargeError: 413,    # pixels, read from the header before decoding
@@ -50,7 +53,8 @@ class ErrorBody(BaseModel):
 
 
 _DESCRIPTIONS = {
-    400: "Bad parameters, missing or malformed multipart fields, or images of different sizes.",
+    400: "Bad parameters, missing or malformed multipart fields, images of different sizes, or a calibration "
+    "file that cannot be read or does not fit the images.",
     408: "The request body did not arrive in full within ADSM_BODY_TIMEOUT_S seconds.",
     413: "Request body over ADSM_MAX_BODY_BYTES, an image over ADSM_MAX_PIXELS, a cost volume "
     "(width x height x disparities) over ADSM_MAX_COST_CELLS, a memory plan over ADSM_MAX_REQUEST_BYTES, "

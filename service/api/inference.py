@@ -1,11 +1,13 @@
 """The service's one matcher: loading, warm-up, and the request pipeline shared by every stereo route.
 
 Pipeline of a stereo request: admission (QueueFull at once when the queue is full) -> multipart body (408
-when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/middleware/body_timeout.py) -> both image headers:
-sizes, pixel limit, then the request's memory plan (service/memory.py) against ADSM_MAX_REQUEST_BYTES
-and its tower work against ADSM_MAX_PIXELS, all before a pixel is decoded -> decode both images in a
-thread -> wait for the inference slot -> match in a thread -> the route encodes. Each step's seconds go
-into the Server-Timing header and the per-stage histogram.
+when it takes longer than ADSM_BODY_TIMEOUT_S, service/api/middleware/body_timeout.py) -> both image
+headers: sizes, pixel limit, then the request's memory plan (service/memory.py) against ADSM_MAX_REQUEST_BYTES
+and its tower work against ADSM_MAX_PIXELS, all before a pixel is decoded -> the camera (query numbers
+or the ``calib`` file, service/api/camera.py) -> decode both images in a thread (and rectify them when
+the calibration describes a raw rig) -> wait for the inference slot -> match, then the pair diagnostics
+(service/api/pair_warnings.py), in a thread -> the route encodes. Each step's seconds go into the
+Server-Timing header and the per-stage histogram.
 
 A refused request raises a domain error, never an HTTP one: this module's and the queue's
 (service/api/refusals.py), the runtime's (DisparityRangeError, LimitError, ImageDecodeError,
@@ -26,8 +28,10 @@ from starlette.datastructures import UploadFile
 from starlette.requests import ClientDisconnect
 
 from service import jit
+from service.api.camera import CALIBRATION_FIELD, CalibrationFile, CameraRequest
 from service.api.metrics import ServiceMetrics
 from service.api.middleware.delivery import Unsent
+from service.api.pair_warnings import match_and_check
 from service.api.queue import InferenceSlot, QueueFull
 from service.api.refusals import (
     WARMING_RETRY_AFTER_S,
@@ -38,6 +42,7 @@ from service.api.refusals import (
     NotReady,
 )
 from service.api.settings import Settings
+from service.calibration import StereoCalibration
 from service.io import image_size, read_image
 from service.limits import DisparityRangeError, LimitError
 from service.matcher import Matcher, MatchOptions, StereoResult
@@ -58,6 +63,9 @@ class StereoMatch:
     left: np.ndarray  # uint8 HxWx3, the colours of the point cloud
     timings: dict[str, float]  # decode, queue, then the matcher's stages
     started: float  # perf_counter() when the request was admitted, for the total
+    calibration: StereoCalibration | None = None  # the camera, for the images as matched
+    rectified: bool = False  # the pair was rectified with ``calibration`` before matching
+    warnings: tuple[str, ...] = ()  # "kind: sentence" of each pair diagnostic (X-ADSM-Warning)
 
 
 class InferenceService:
@@ -105,7 +113,11 @@ class InferenceService:
         self.draining = True
         self.metrics.ready.set(0)
 
-    async def match(self, request: Request, options: MatchOptions) -> StereoMatch:
+    async def match(self, request: Request, options: MatchOptions, *, camera: CameraRequest | None = None,
+                    diagnostics: bool = False) -> StereoMatch:
+        """Read, check, decode and match one pair. ``camera``: the route takes a camera (a ``calib`` file
+        is refused without); ``diagnostics``: look at the pair for signs of a swap or missing
+        rectification (StereoMatch.warnings)."""
         if self.draining:
             # Refused before its body was read: take the body first (bounded by the size limit and the body
             # deadline, nothing kept), so that closing the connection after the 503 does not reset it
@@ -121,28 +133,44 @@ class InferenceService:
             self.metrics.rejections.inc()
             raise
         with admission:
-            return await self._match_admitted(request, options, time.perf_counter())
+            return await self._match_admitted(request, options, camera, diagnostics, time.perf_counter())
 
-    async def _match_admitted(self, request: Request, options: MatchOptions, admitted: float) -> StereoMatch:
-        left_bytes, right_bytes = await _read_pair(request)
+    async def _match_admitted(self, request: Request, options: MatchOptions, camera: CameraRequest | None,
+                              diagnostics: bool, admitted: float) -> StereoMatch:
+        left_bytes, right_bytes, calib = await _read_pair(request, calib=camera is not None)
         started = time.perf_counter()
         height, width = await run_in_threadpool(self._pair_size, left_bytes, right_bytes)
+        calibration = None  # BadRequest, CalibrationError (400): a camera missing, twice, or unusable
+        if camera is not None:
+            calibration = await run_in_threadpool(camera.resolve, calib, height, width)
         self._check_request(height, width, options)
         left, right = await run_in_threadpool(self._decode_pair, left_bytes, right_bytes)
         timings = {"decode": time.perf_counter() - started}
         del left_bytes, right_bytes
+        rectified = calibration is not None and calibration.needs_rectification
+        if calibration is not None and rectified:
+            from service.calibration.rectify import Rectifier  # OpenCV, imported only when a rig needs it
+
+            started = time.perf_counter()
+            left, right = await run_in_threadpool(Rectifier(calibration), left, right)
+            timings["rectify"] = time.perf_counter() - started
         self._check_unsent()
         queued = time.perf_counter()
         try:  # a client that leaves while queued ends the request here (ClientGone, raised by the slot)
-            began, result = await self.slot.run(
-                _timed_match, self._loaded(), left, right, options, disconnected=request.is_disconnected
+            began, result, check = await self.slot.run(
+                match_and_check, self._loaded(), left, right, options, diagnostics,
+                disconnected=request.is_disconnected,
             )
         except ValueError as error:  # the matcher's word on bad options for this pair
             raise BadRequest(str(error)) from None
         timings["queue"] = began - queued
         # The matcher's own "total" is left out: the route reports the whole request's total instead.
         timings.update((stage, seconds) for stage, seconds in result.timings.items() if stage != "total")
-        return StereoMatch(result=result, left=left, timings=timings, started=admitted)
+        if check is not None:
+            timings["check"] = check.seconds
+        return StereoMatch(result=result, left=left, timings=timings, started=admitted,
+                           calibration=calibration, rectified=rectified,
+                           warnings=() if check is None else check.warnings)
 
     def _check_unsent(self) -> None:
         """Backlogged while slow clients leave more than ADSM_MAX_UNSENT_BYTES of answers untaken: checked
@@ -206,13 +234,6 @@ class InferenceService:
         return left, read_image(right_bytes, max_pixels=self.settings.max_pixels, name="right")
 
 
-def _timed_match(
-    matcher: StereoMatcher, left: np.ndarray, right: np.ndarray, options: MatchOptions
-) -> tuple[float, StereoResult]:
-    began = time.perf_counter()  # when the slot was won: the queue wait ends here
-    return began, matcher(left, right, options)
-
-
 async def _discard_body(request: Request) -> None:
     """Read the request's body to its end and drop it."""
     try:
@@ -222,8 +243,9 @@ async def _discard_body(request: Request) -> None:
         raise ClientGone("client disconnected during the upload") from None
 
 
-async def _read_pair(request: Request) -> tuple[bytes, bytes]:
-    """The bytes of the ``left`` and ``right`` file parts of a multipart/form-data body."""
+async def _read_pair(request: Request, *, calib: bool) -> tuple[bytes, bytes, CalibrationFile | None]:
+    """The bytes of the ``left`` and ``right`` file parts of a multipart/form-data body, and the optional
+    ``calib`` file part where the route takes a camera (``calib``)."""
     content_type = request.headers.get("content-type", "")
     # Media types are case-insensitive (RFC 9110 8.3.1); the multipart parser lower-cases them too.
     if not content_type.strip().lower().startswith("multipart/form-data"):
@@ -231,24 +253,32 @@ async def _read_pair(request: Request) -> tuple[bytes, bytes]:
             f"expected a multipart/form-data body with files 'left' and 'right', got "
             f"{content_type or 'no Content-Type'}"
         )
+    allowed = ("left", "right", CALIBRATION_FIELD) if calib else ("left", "right")
     try:
-        form = await request.form(max_files=2, max_fields=16)
+        form = await request.form(max_files=len(allowed), max_fields=16)
     except ClientDisconnect:  # gone mid-upload: nobody to answer, and not a server error
         raise ClientGone("client disconnected during the upload") from None
     try:
         # A misspelt or unexpected part is refused rather than ignored: the client learns of its mistake.
-        if unexpected := sorted(set(form.keys()) - {"left", "right"}):
+        if unexpected := sorted(set(form.keys()) - set(allowed)):
+            optional = f" (and optionally '{CALIBRATION_FIELD}')" if calib else ""
             raise BadRequest(
-                f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and 'right'"
+                f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and "
+                f"'right'{optional}"
             )
-        parts = []
-        for name in ("left", "right"):
+        parts: dict[str, bytes] = {}
+        for name in allowed:
             part = form.get(name)
             if part is None:
+                if name == CALIBRATION_FIELD:
+                    continue
                 raise BadRequest(f"multipart field '{name}' is missing (an image file)")
             if not isinstance(part, UploadFile):
                 raise BadRequest(f"multipart field '{name}' must be a file, not a text field")
-            parts.append(await part.read())
-        return parts[0], parts[1]
+            parts[name] = await part.read()
+        upload = form.get(CALIBRATION_FIELD)
+        calibration = (CalibrationFile(upload.filename, parts[CALIBRATION_FIELD])
+                       if isinstance(upload, UploadFile) else None)
+        return parts["left"], parts["right"], calibration
     finally:
         await form.close()

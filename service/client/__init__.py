@@ -17,6 +17,7 @@ from service.client.client import DEFAULT_TIMEOUT, StereoClient
 from service.client.errors import (
     AnswerFormatError,
     BadRequestError,
+    PairWarning,
     RequestTimeoutError,
     ServerBusyError,
     ServerError,
@@ -31,6 +32,7 @@ __all__ = [
     "AnswerFormatError",
     "BadRequestError",
     "DisparityMaps",
+    "PairWarning",
     "PointCloud",
     "RequestTimeoutError",
     "RetryPolicy",

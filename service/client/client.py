@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping
 from typing import Any, Literal, overload
 
@@ -12,13 +13,14 @@ from service.client import answers
 from service.client.answers import DisparityMaps, PointCloud
 from service.client.errors import (
     BadRequestError,
+    PairWarning,
     RequestTimeoutError,
     ServerBusyError,
     ServerError,
     ServiceError,
     TransportError,
 )
-from service.client.images import ImageInput, image_part
+from service.client.images import CalibrationInput, ImageInput, calibration_part, image_part
 from service.client.retry import RetryPolicy, retry_after_seconds
 
 # Per attempt: connecting is quick or never; the answer may wait behind the service's queue (a few
@@ -34,6 +36,12 @@ class StereoClient:
     one raises :class:`~service.client.BadRequestError` with the service's sentence. A 503 is retried by
     ``retry`` (:class:`RetryPolicy`); ``timeout`` (seconds or an ``httpx.Timeout``) bounds each attempt.
     ``transport`` replaces the network (``httpx.MockTransport``, or an app in-process).
+
+    ``calib`` (a calibration file: a path or its bytes; Middlebury ``calib.txt``, KITTI, OpenCV
+    .yml/.xml/.json) is sent as the ``calib`` field: instead of ``focal_px``/``baseline_m`` for depth and
+    point clouds, and a raw rig's pair is rectified by the service before matching. When the service
+    finds the pair suspect (swapped, not rectified, few pixels passing the check) each of its
+    ``X-ADSM-Warning`` headers is issued as a :class:`~service.client.PairWarning`.
     """
 
     def __init__(self, url: str, *, timeout: float | httpx.Timeout = DEFAULT_TIMEOUT,
@@ -56,14 +64,16 @@ class StereoClient:
     @overload
     def disparity(self, left: ImageInput, right: ImageInput, *, format: str = ...,
                   validity: Literal[False] = False, confidence: Literal[False] = False,
-                  **options: Any) -> np.ndarray: ...
+                  calib: CalibrationInput | None = ..., **options: Any) -> np.ndarray: ...
 
     @overload
     def disparity(self, left: ImageInput, right: ImageInput, *, format: str = ..., validity: bool = ...,
-                  confidence: bool = ..., **options: Any) -> DisparityMaps: ...
+                  confidence: bool = ..., calib: CalibrationInput | None = ...,
+                  **options: Any) -> DisparityMaps: ...
 
     def disparity(self, left: ImageInput, right: ImageInput, *, format: str = "npy", validity: bool = False,
-                  confidence: bool = False, **options: Any) -> np.ndarray | DisparityMaps:
+                  confidence: bool = False, calib: CalibrationInput | None = None,
+                  **options: Any) -> np.ndarray | DisparityMaps:
         """Disparity in pixels, float32 H x W, NaN invalid. With ``validity`` and/or ``confidence``: a
         :class:`DisparityMaps` holding those maps too.
 
@@ -76,25 +86,29 @@ class StereoClient:
             params["validity"] = True
         if confidence:
             params["confidence"] = True
-        response = self._post("disparity", left, right, params)
+        response = self._post("disparity", left, right, params, calib)
         if validity or confidence:
             return answers.disparity_maps(response.content, response.headers.get("content-type", ""),
                                           validity=validity, confidence=confidence)
         return answers.disparity_map(response.content)
 
-    def depth(self, left: ImageInput, right: ImageInput, *, focal_px: float, baseline_m: float,
-              format: str = "npy", **options: Any) -> np.ndarray:
-        """Depth ``z = baseline x focal / disparity`` in metres, float32 H x W, NaN where there is none.
+    def depth(self, left: ImageInput, right: ImageInput, *, focal_px: float | None = None,
+              baseline_m: float | None = None, calib: CalibrationInput | None = None, format: str = "npy",
+              **options: Any) -> np.ndarray:
+        """Depth ``z = baseline x focal / (disparity + doffs)`` in metres, float32 H x W, NaN where there is
+        none; the camera by ``focal_px`` and ``baseline_m`` (and ``doffs``) or by ``calib``.
         ``format``: ``npy`` (exact) or ``png16`` (whole millimetres; none beyond 65.535 m)."""
         _check_choice("format", format, answers.DEPTH_FORMATS)
-        params = {**options, "focal_px": focal_px, "baseline_m": baseline_m, "format": format}
-        return answers.depth_map(self._post("depth", left, right, params).content)
+        params = {**options, **_camera(focal_px, baseline_m, calib), "format": format}
+        return answers.depth_map(self._post("depth", left, right, params, calib).content)
 
-    def pointcloud(self, left: ImageInput, right: ImageInput, *, focal_px: float, baseline_m: float,
+    def pointcloud(self, left: ImageInput, right: ImageInput, *, focal_px: float | None = None,
+                   baseline_m: float | None = None, calib: CalibrationInput | None = None,
                    cx: float | None = None, cy: float | None = None, **options: Any) -> PointCloud:
-        """Coloured points of every pixel with a depth (``cx``, ``cy`` default to the image centre)."""
-        params = {**options, "focal_px": focal_px, "baseline_m": baseline_m, "cx": cx, "cy": cy}
-        return answers.point_cloud(self._post("pointcloud", left, right, params).content)
+        """Coloured points of every pixel with a depth (``cx``, ``cy`` default to the image centre; a
+        ``calib`` file gives all four)."""
+        params = {**options, **_camera(focal_px, baseline_m, calib), "cx": cx, "cy": cy}
+        return answers.point_cloud(self._post("pointcloud", left, right, params, calib).content)
 
     def model(self) -> dict[str, Any]:
         """The served model's manifest (``/v1/model``)."""
@@ -111,11 +125,16 @@ class StereoClient:
         except httpx.TransportError:
             return False
 
-    def _post(self, route: str, left: ImageInput, right: ImageInput,
-              params: Mapping[str, Any]) -> httpx.Response:
+    def _post(self, route: str, left: ImageInput, right: ImageInput, params: Mapping[str, Any],
+              calib: CalibrationInput | None = None) -> httpx.Response:
         files = {"left": image_part(left, "left"), "right": image_part(right, "right")}
+        if calib is not None:
+            files["calib"] = calibration_part(calib)
         query = _query(params)
-        return self._send(lambda: self._http.post(route, params=query, files=files))
+        response = self._send(lambda: self._http.post(route, params=query, files=files))
+        for warning in response.headers.get_list("x-adsm-warning"):
+            warnings.warn(PairWarning(warning), stacklevel=3)  # at the caller of disparity/depth/...
+        return response
 
     def _send(self, request: Callable[[], httpx.Response]) -> httpx.Response:
         waited, attempt = 0.0, 1
@@ -177,6 +196,18 @@ def _query(params: Mapping[str, Any]) -> dict[str, str]:
             raise TypeError(f"option {name}: expected a number, a string or a boolean, "
                             f"got {type(value).__name__}")
     return query
+
+
+def _camera(focal_px: float | None, baseline_m: float | None,
+            calib: CalibrationInput | None) -> dict[str, Any]:
+    """The camera's query parameters; a camera given twice, half or not at all is refused before sending."""
+    by_hand = (focal_px is not None, baseline_m is not None)
+    if by_hand[0] != by_hand[1]:
+        raise ValueError("give focal_px and baseline_m together (or a calib file instead)")
+    if all(by_hand) == (calib is not None):
+        raise ValueError("give either focal_px and baseline_m, or calib (a calibration file), not "
+                         + ("both" if calib is not None else "neither"))
+    return {"focal_px": focal_px, "baseline_m": baseline_m}
 
 
 def _check_choice(name: str, value: str, choices: tuple[str, ...]) -> None:

@@ -8,6 +8,9 @@
     ├── TransportError            no answer at all: connection refused or reset, DNS, protocol
     │   └── RequestTimeoutError   the answer did not come within the client's timeout
     └── AnswerFormatError         an answer that cannot be decoded (not the format asked for)
+
+    PairWarning (a UserWarning, issued through Python's warnings module): the service answered but found
+    the pair suspect (swapped, not rectified, few pixels passing the left-right check)
 """
 
 from __future__ import annotations
@@ -62,3 +65,12 @@ class RequestTimeoutError(TransportError):
 
 class AnswerFormatError(StereoClientError):
     """A 2xx answer whose body is not what was asked for (wrong media type, truncated, missing part)."""
+
+
+class PairWarning(UserWarning):
+    """The service's ``X-ADSM-Warning`` about the pair (``kind``: ``swapped``, ``unrectified`` or
+    ``few-valid``); the answer is still returned. Silence or raise it with :mod:`warnings` filters."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.kind = message.split(":", 1)[0]

@@ -51,3 +51,16 @@ def _png(image: Image.Image) -> bytes:
     buffer = io.BytesIO()
     image.save(buffer, format="PNG", compress_level=_PNG_COMPRESS_LEVEL)
     return buffer.getvalue()
+
+
+CalibrationInput = Union[str, os.PathLike, bytes, bytearray, memoryview]  # noqa: UP007
+
+
+def calibration_part(calib: CalibrationInput) -> tuple[str, bytes, str]:
+    """The multipart file of a calibration: a path (its name tells the service the format) or bytes."""
+    if isinstance(calib, str | os.PathLike):
+        path = Path(calib)
+        return path.name, path.read_bytes(), "application/octet-stream"
+    if isinstance(calib, bytes | bytearray | memoryview):
+        return "calib", bytes(calib), "application/octet-stream"
+    raise TypeError(f"calib: expected a file path or the file's bytes, got {type(calib).__name__}")

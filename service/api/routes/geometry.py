@@ -6,6 +6,13 @@ NaN, infinite or not positive have no depth (NaN in the depth map, dropped from 
 
 from __future__ import annotations
 
-from service.geometry import depth_from_disparity, depth_npy, depth_png16, point_cloud_ply
+from service.geometry import (
+    depth_from_disparity,
+    depth_npy,
+    depth_png16,
+    encode_depth,
+    measured,
+    point_cloud_ply,
+)
 
-__all__ = ["depth_from_disparity", "depth_npy", "depth_png16", "point_cloud_ply"]
+__all__ = ["depth_from_disparity", "depth_npy", "depth_png16", "encode_depth", "measured", "point_cloud_ply"]

@@ -96,3 +96,10 @@ async def card(request: Request) -> Response:
 @router.get("/", include_in_schema=False)
 async def demo_page() -> FileResponse:
     return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+
+@router.get("/favicon.ico", include_in_schema=False)
+async def favicon() -> FileResponse:
+    # Browsers ask for /favicon.ico on any page that names no icon (/metrics, /v1/model, ...): the demo
+    # page's own icon (a PNG, which every browser takes at this path) instead of a 404.
+    return FileResponse(STATIC_DIR / "favicon.png", media_type="image/png")
