@@ -29,6 +29,7 @@ from service.io import read_disparity
 from service.io.colormap import TURBO
 
 ROOT = Path(__file__).resolve().parents[1]
+STATIC = ROOT / "service" / "api" / "static"
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -198,14 +199,12 @@ def test_sample_pair_depth_and_3d_view(page, tmp_path: Path) -> None:
     assert canvas_pixels(page, "#disparity").shape[:2] == SAMPLE_SIZE
     ticks = page.text_content("#depth-scale .ticks")
     assert ticks.endswith(" m") and len(page.query_selector_all("#depth-scale .ticks span")) == 5
-
-    # The depth map the page paints is /depth's npy, and the cloud /pointcloud's PLY (held for download).
-    depth = np.load(io.BytesIO(download(page, "depth-npy")))
-    assert depth.shape == SAMPLE_SIZE and np.isfinite(depth).mean() > 0.9
-    cloud = read_ply(download(page, "pointcloud-ply"))
-    assert page.text_content("#point-count") == f"{len(cloud):,}" and len(cloud) > 30_000
-    depth_png = np.asarray(Image.open(io.BytesIO(download(page, "depth-png16"))))
-    assert depth_png.dtype == np.uint16 and depth_png.shape == SAMPLE_SIZE
+    # The confidence part, painted grey; the camera the service used, said back
+    assert not page.is_hidden("#confidence-figure")
+    confidence = canvas_pixels(page, "#confidence")
+    assert confidence.shape[:2] == SAMPLE_SIZE and len(np.unique(confidence[:, :, 0])) > 50
+    assert page.text_content("#calibration-read").startswith("Camera: focal length 300 px, baseline 0.05 m")
+    assert page.is_hidden("#warnings")
 
     # The 3D view drew the cloud: a good share of its pixels differ from the background.
     page.wait_for_timeout(200)
@@ -223,15 +222,67 @@ def test_sample_pair_depth_and_3d_view(page, tmp_path: Path) -> None:
     centre = (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.move(*centre)
     page.mouse.down()
-    page.mouse.move(centre[0] + 120, centre[1] + 40, steps=6)
+    page.mouse.move(centre[0] + 45, centre[1] + 20, steps=6)  # 0.45 rad about y, 0.2 about x
     page.mouse.up()
     turned = canvas_pixels(page, "#cloud")
     assert np.any(turned != view, axis=2).mean() > 0.05
+    keep_screenshot(page, tmp_path, "demo-page-turned.png")  # docs/images/demo-page.png is this one
     page.mouse.wheel(0, 600)  # away: the cloud shrinks
     zoomed = canvas_pixels(page, "#cloud")
     assert np.any(zoomed != zoomed[0, 0], axis=2).mean() < np.any(turned != turned[0, 0], axis=2).mean()
     page.dblclick("#cloud")
     np.testing.assert_array_equal(canvas_pixels(page, "#cloud"), view)
+
+    # The depth map the page paints is /depth's npy, and the cloud /pointcloud's PLY (held for download).
+    depth = np.load(io.BytesIO(download(page, "depth-npy")))
+    assert depth.shape == SAMPLE_SIZE and np.isfinite(depth).mean() > 0.9
+    cloud = read_ply(download(page, "pointcloud-ply"))
+    assert page.text_content("#point-count") == f"{len(cloud):,}" and len(cloud) > 30_000
+    depth_png = np.asarray(Image.open(io.BytesIO(download(page, "depth-png16"))))
+    assert depth_png.dtype == np.uint16 and depth_png.shape == SAMPLE_SIZE
+
+
+def test_calibration_file_search_start_and_cloud_options(page, tmp_path: Path) -> None:
+    """A Middlebury calib.txt instead of typed numbers (they are switched off), min disparity, max depth
+    and measured pixels only all reach the service: the cloud shrinks, the disparities start at M."""
+    calib = tmp_path / "calib.txt"
+    calib.write_text("cam0=[300 0 111; 0 300 92; 0 0 1]\ncam1=[300 0 113; 0 300 92; 0 0 1]\nbaseline=50\n"
+                     "width=225\nheight=187\n")
+    page.set_input_files("#left", str(STATIC / "sample-left.png"))
+    page.set_input_files("#right", str(STATIC / "sample-right.png"))
+    page.fill("#max-disparity", "24")
+    page.fill("#min-disparity", "6")
+    page.set_input_files("#calib", str(calib))
+    assert page.is_disabled("#focal-px") and page.is_disabled("#baseline-m")
+    page.click("#compute")
+    _done(page)
+    assert "from calib.txt (Middlebury)" in page.text_content("#calibration-read")
+    assert "doffs 2 px" in page.text_content("#calibration-read")
+    disparity = read_disparity_bytes(download(page, "disparity-npy"), tmp_path / "d.npy")
+    assert np.nanmin(disparity) >= 6 - 1 and np.nanmax(disparity) <= 6 + 24
+    everything = int(page.text_content("#point-count").replace(",", ""))
+    page.fill("#max-depth", "1.2")
+    page.check("#drop-filled")
+    page.click("#compute")
+    _done(page)
+    kept = read_ply(download(page, "pointcloud-ply"))
+    assert int(page.text_content("#point-count").replace(",", "")) == len(kept) < everything * 0.9
+    assert kept["z"].max() <= 1.2
+    depth = np.load(io.BytesIO(download(page, "depth-npy")))
+    assert np.nanmax(depth) <= 1.2
+    assert download(page, "depth-pfm").startswith(b"Pf\n")
+    page.click("#clear-calib")
+    assert not page.is_disabled("#focal-px")
+
+
+def test_pair_warnings_are_shown(page) -> None:
+    page.set_input_files("#left", str(STATIC / "sample-right.png"))  # swapped
+    page.set_input_files("#right", str(STATIC / "sample-left.png"))
+    page.fill("#max-disparity", "32")
+    page.click("#compute")
+    _done(page)
+    assert not page.is_hidden("#warnings")
+    assert page.text_content("#warnings li").startswith("swapped: the pair looks swapped")
 
 
 def test_colours_are_the_service_colour_table_in_a_fixed_range(page, tmp_path: Path) -> None:

@@ -1,6 +1,7 @@
-// Demo page: sends the pair to the service and shows disparity, validity, depth and the point cloud.
-// One Compute = POST /disparity (npy + validity: multipart/mixed), and with a camera also POST /depth
-// (npy) and POST /pointcloud (PLY), all with the same options; the page paints the maps itself.
+// Demo page: sends the pair to the service and shows disparity, confidence, validity, depth and the point
+// cloud. One Compute = POST /disparity (npy + validity + confidence: multipart/mixed), and with a camera
+// (focal length and baseline, or a calibration file) also POST /depth (npy) and POST /pointcloud (PLY),
+// all with the same options; the page paints the maps itself.
 "use strict";
 
 import { GREY, autoRange, drawScale, paint } from "./colormap.js";
@@ -25,6 +26,7 @@ const FILES = {
   "disparity-pfm": { route: "/disparity", format: "pfm", name: "disparity.pfm" },
   "depth-png16": { route: "/depth", format: "png16", name: "depth.png" },
   "depth-npy": { held: "depthNpy", name: "depth.npy" },
+  "depth-pfm": { route: "/depth", format: "pfm", name: "depth.pfm" },
   "pointcloud-ply": { held: "ply", name: "pointcloud.ply" },
 };
 
@@ -74,31 +76,44 @@ function chosenPair() {
   return null;
 }
 
-// The query parameters of one Compute: the matching options (every route), the camera (depth, cloud).
+// What one Compute asks: `match` goes to every route; with a calibration file, `calib` (the file and its
+// options) too, so that a raw rig is rectified alike everywhere; `camera` (focal length, baseline, or the
+// calibration file; max depth, measured only) to /depth and /pointcloud. camera is null: disparity only.
 function requestOptions() {
   const match = new URLSearchParams();
-  const maxDisparity = $("max-disparity").value.trim();
-  if (maxDisparity) match.set("max_disparity", maxDisparity);
+  for (const [id, name] of [["max-disparity", "max_disparity"], ["min-disparity", "min_disparity"]]) {
+    if ($(id).value.trim()) match.set(name, $(id).value.trim());
+  }
   for (const [id, name] of [["lr-check", "lr_check"], ["fill", "fill"], ["subpixel", "subpixel"]]) {
     match.set(name, $(id).checked ? "true" : "false");
   }
-  const camera = new URLSearchParams();
+  const file = $("calib").files[0] || null;
+  const calib = new URLSearchParams();
+  if (file && $("calib-units").value !== "m") calib.set("calib_units", $("calib-units").value);
+  if (file && $("calib-rectified").checked) calib.set("calib_rectified", "true");
+  const camera = new URLSearchParams(calib);
   const [focal, baseline] = [$("focal-px").value.trim(), $("baseline-m").value.trim()];
-  if (Boolean(focal) !== Boolean(baseline)) {
+  if (!file && Boolean(focal) !== Boolean(baseline)) {
     throw new Error("give both the focal length and the baseline (or neither, for disparity only)");
   }
-  if (focal) {
+  if (!file && focal) {
     camera.set("focal_px", focal);
     camera.set("baseline_m", baseline);
     for (const name of ["cx", "cy"]) if ($(name).value.trim()) camera.set(name, $(name).value.trim());
   }
-  return { match, camera: focal ? camera : null };
+  camera.set("diagnostics", "false"); // the disparity answer already says what is wrong with the pair
+  if ($("max-depth").value.trim()) camera.set("max_depth", $("max-depth").value.trim());
+  if ($("drop-filled").checked) camera.set("drop_filled", "true");
+  return { match, file, calib, camera: file || focal ? camera : null };
 }
 
-async function post(route, pair, ...queries) {
+// POST `route` with the pair (and the calibration file, if any) and the union of `queries`.
+async function post(route, request, ...queries) {
+  const { pair, file } = request;
   const body = new FormData();
   body.append("left", pair.left, pair.left.name || "left.png");
   body.append("right", pair.right, pair.right.name || "right.png");
+  if (file) body.append("calib", file, file.name);
   const query = new URLSearchParams(queries.flatMap((q) => [...q.entries()]));
   const started = performance.now();
   const response = await fetch(`${route}?${query}`, { method: "POST", body });
@@ -137,10 +152,11 @@ async function compute(event) {
   }
   $("compute").disabled = true;
   try {
-    const { match, camera } = requestOptions();
+    const request = { pair, ...requestOptions() };
+    const { match, calib, camera } = request;
     setStatus("computing the disparity…");
-    const request = { pair, match, camera };
-    const answer = await post("/disparity", pair, match, new URLSearchParams({ format: "npy", validity: "true" }));
+    const maps = new URLSearchParams({ format: "npy", validity: "true", confidence: "true" });
+    const answer = await post("/disparity", request, match, calib, maps);
     const parts = parseMultipart(answer.body, answer.response.headers.get("content-type"));
     const disparityNpy = parts.disparity;
     const disparity = parseNpy(await disparityNpy.arrayBuffer());
@@ -148,14 +164,17 @@ async function compute(event) {
       request, disparity, disparityNpy, validity: await decodeCodes(parts.validity),
       confidence: parts.confidence ? await confidenceOf(parts.confidence) : null,
       timings: [["", answer]], requestId: answer.response.headers.get("x-request-id"),
+      warnings: pairWarnings(answer.response.headers.get("x-adsm-warning")),
     };
     if (camera) {
       setStatus("computing the depth…");
-      const depthAnswer = await post("/depth", pair, match, camera, new URLSearchParams({ format: "npy" }));
+      const npyFormat = new URLSearchParams({ format: "npy" });
+      const depthAnswer = await post("/depth", request, match, camera, npyFormat);
+      result.calibration = calibrationOf(depthAnswer.response.headers.get("x-adsm-calibration"));
       result.depthNpy = new Blob([depthAnswer.body], { type: "application/x-npy" });
       result.depth = parseNpy(depthAnswer.body).data;
       setStatus("computing the point cloud…");
-      const cloudAnswer = await post("/pointcloud", pair, match, camera);
+      const cloudAnswer = await post("/pointcloud", request, match, camera);
       result.ply = new Blob([cloudAnswer.body], { type: "application/x-ply" });
       result.cloud = parsePly(cloudAnswer.body);
       result.timings.push(["depth request", depthAnswer], ["point cloud request", cloudAnswer]);
@@ -173,9 +192,25 @@ async function compute(event) {
   }
 }
 
+// The X-ADSM-Warning headers (fetch joins repeated ones with ", "): one "kind: sentence" each.
+function pairWarnings(header) {
+  return header ? header.split(/,\s*(?=(?:swapped|unrectified|few-valid): )/) : [];
+}
+
+// X-ADSM-Calibration: "focal_px=...; baseline_m=...; ...; source=\"calib.txt (Middlebury)\"".
+function calibrationOf(header) {
+  const fields = {};
+  for (const [, key, value] of (header || "").matchAll(/(\w+)=("[^"]*"|[^;]*)/g)) {
+    fields[key] = value.replace(/^"|"$/g, "");
+  }
+  return fields;
+}
+
 function clearResults() {
   shown = null;
   $("results").hidden = true;
+  $("warnings").hidden = true;
+  $("warnings").replaceChildren();
   const preview = $("left-preview");
   if (preview.src) URL.revokeObjectURL(preview.src);
   preview.removeAttribute("src");
@@ -194,12 +229,27 @@ function showResults() {
   $("depth-figure").hidden = !shown.depth;
   $("cloud-figure").hidden = !cloud;
   for (const element of document.querySelectorAll("#downloads .metric")) element.hidden = !shown.depth;
+  $("warnings").replaceChildren(...shown.warnings.map((warning) => {
+    const item = document.createElement("li");
+    item.textContent = warning;
+    return item;
+  }));
+  $("warnings").hidden = !shown.warnings.length;
+  const calibration = shown.calibration;
+  $("calibration-read").hidden = !calibration;
+  if (calibration) {
+    const from = calibration.source ? ` from ${calibration.source}` : "";
+    const rectified = calibration.rectified === "true" ? "; the pair was rectified first" : "";
+    $("calibration-read").textContent = `Camera${from}: focal length ${calibration.focal_px} px, baseline ` +
+      `${calibration.baseline_m} m, principal point (${calibration.cx}, ${calibration.cy}) px, ` +
+      `doffs ${calibration.doffs} px${rectified}.`;
+  }
   drawValidity(shown.validity, disparity.width, disparity.height);
   paintMaps();
   showTimings();
   if (cloud) {
     $("point-count").textContent = cloud.count.toLocaleString("en");
-    const focal = Number(shown.request.camera.get("focal_px"));
+    const focal = Number(shown.calibration.focal_px);
     // Points as large as an image pixel looks in the first view, so that it shows no gaps.
     const size = Math.min(8, Math.max(1, Math.round($("cloud").clientHeight / disparity.height)));
     $("point-size").value = String(size);
@@ -305,9 +355,10 @@ async function download(event) {
     let blob = shown[file.held];
     if (!blob) {
       setStatus(`computing ${file.name}…`);
-      const { pair, match, camera } = shown.request;
-      const queries = [match, ...(file.route === "/disparity" ? [] : [camera])];
-      blob = new Blob([(await post(file.route, pair, ...queries, new URLSearchParams({ format: file.format }))).body]);
+      const { match, calib, camera } = shown.request;
+      const format = new URLSearchParams({ format: file.format });
+      const queries = [match, file.route === "/disparity" ? calib : camera, format];
+      blob = new Blob([(await post(file.route, shown.request, ...queries)).body]);
     }
     const link = document.createElement("a");
     link.href = URL.createObjectURL(blob);
@@ -323,12 +374,20 @@ async function download(event) {
 document.addEventListener("DOMContentLoaded", () => {
   viewer = new CloudViewer($("cloud"));
   $("use-sample").addEventListener("click", () => useSamplePair().catch((e) => setStatus(e.message, true)));
+  const cameraHint = $("camera-hint").textContent;
   for (const id of ["left", "right"]) {
     $(id).addEventListener("change", () => {
       $("pair-source").textContent = "";
-      $("camera-hint").textContent = "Leave empty for disparity only.";
+      $("camera-hint").textContent = cameraHint;
     });
   }
+  const calibChosen = () => { // a calibration file replaces the numbers typed by hand
+    const chosen = Boolean($("calib").files[0]);
+    for (const id of ["focal-px", "baseline-m", "cx", "cy"]) $(id).disabled = chosen;
+    $("clear-calib").hidden = !chosen;
+  };
+  $("calib").addEventListener("change", calibChosen);
+  $("clear-calib").addEventListener("click", () => { $("calib").value = ""; calibChosen(); });
   $("pair-form").addEventListener("submit", compute);
   for (const id of ["range-auto", "range-fixed", "disparity-low", "disparity-high", "depth-low", "depth-high"]) {
     $(id).addEventListener("input", paintMaps);
