@@ -8,10 +8,14 @@ Many pairs in one process (the model is loaded and the kernels compiled once)::
 
     adsm predict --data RIG_DIR -o 'out/{name}.png' [--depth 'out/{name}.npy'] [--shard I/N]
     adsm predict --pairs LIST.txt --out-dir out/
+    adsm predict --data left.mp4,right.mp4 --out-dir out/       # or --data sbs:side_by_side.mp4
 
 ``--data DIR`` pairs the files of the same name in ``DIR/left`` and ``DIR/right`` (also ``image_2`` /
 ``image_3`` and ``image_02/data`` / ``image_03/data``, KITTI's layouts); ``--pairs FILE`` lists one
-``LEFT RIGHT`` pair per line. Output paths are templates holding ``{name}`` (the left file's stem);
+``LEFT RIGHT`` pair per line; ``--data LEFT_VIDEO,RIGHT_VIDEO`` takes frame i of each video as pair i
+and ``--data sbs:VIDEO`` splits each frame of one side-by-side video in halves (service/io/video.py, the
+``video`` extra; frames are decoded one at a time, named ``frame_000123``). Output paths are templates
+holding ``{name}`` (the left file's stem, or the frame's name);
 ``--out-dir DIR`` is short for ``-o DIR/{name}.<format>``. A progress line per pair and a summary go to
 stderr; a pair that fails is reported and skipped, the others are still written, and the exit status is
 1 if any failed.
@@ -37,7 +41,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -47,6 +51,7 @@ from PIL import Image
 from service.cli.match_flags import add_match_flags, match_options
 from service.features import default_model_dir, load_manifest
 from service.io import FORMATS, format_for_path, image_size, read_pair, write_disparity
+from service.io.video import StereoVideo
 from service.limits import ENVIRONMENT, RequestLimits, check_request
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
 
@@ -57,6 +62,7 @@ if TYPE_CHECKING:  # imported when a pair runs: `adsm --help` must not pay for N
 
 _EXTENSION = {"png16": ".png", "npy": ".npy", "pfm": ".pfm", "color": ".png"}
 _LAYOUTS = (("left", "right"), ("image_2", "image_3"), ("image_02/data", "image_03/data"))
+_SIDE_BY_SIDE = "sbs:"  # --data sbs:VIDEO
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -71,9 +77,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("-o", "--output", metavar="OUT",
         help="disparity map file to write (with --data/--pairs: a template holding {name})")
     batch = parser.add_argument_group("many pairs in one process")
-    batch.add_argument("--data", type=Path, metavar="DIR",
+    batch.add_argument("--data", metavar="SPEC",
                        help="folder with left/ and right/ (or image_2/ image_3/) holding files of the "
-                       "same names")
+                       "same names; LEFT_VIDEO,RIGHT_VIDEO (frame i of each is pair i); sbs:VIDEO (left "
+                       "view in the left half of each frame); videos need the video extra")
     batch.add_argument("--pairs", type=Path, metavar="LIST", help="text file, one 'LEFT RIGHT' pair per line")
     batch.add_argument("--out-dir", type=Path, metavar="DIR", help="short for -o DIR/{name}.<format>")
     batch.add_argument("--skip-existing", action="store_true", help="skip pairs whose disparity file exists")
@@ -126,6 +133,30 @@ class _Pair:
     right: Path | None  # None: the right image is missing (reported as a failed pair)
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Frames:
+    """A pair decoded from a video."""
+
+    name: str
+    left: np.ndarray
+    right: np.ndarray
+    decode_seconds: float
+
+
+@dataclasses.dataclass(frozen=True)
+class _Skipped:
+    name: str  # --skip-existing: its disparity file is there
+
+
+@dataclasses.dataclass(frozen=True)
+class _Failed:
+    name: str
+    reason: str  # a video that cannot be decoded further
+
+
+_Item = _Pair | _Frames | _Skipped | _Failed
+
+
 @dataclasses.dataclass(frozen=True)
 class _Targets:
     disparity: str
@@ -173,7 +204,9 @@ def run(args: argparse.Namespace) -> int:
     manifest = load_manifest(args.model if args.model is not None else default_model_dir())
     options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
     first_size = None
-    if not batch:  # refuse before the model loads, from the headers alone
+    if isinstance(pairs, StereoVideo):  # every frame has the header's size: refuse before the model loads
+        first_size = _check_size(pairs.size, manifest, limits, options)
+    elif not batch:  # refuse before the model loads, from the headers alone
         first_size = _check_request(pairs[0], manifest, limits, options)
     elif pairs and pairs[0].right is not None:
         try:  # only to prepare the first call: a bad pair is reported in its turn
@@ -185,8 +218,9 @@ def run(args: argparse.Namespace) -> int:
     if args.calib is not None:
         from service.calibration import read_calibration
 
-        first = pairs[0].left if pairs else None
-        header_size = _size(first, "left") if first is not None and first.is_file() else None
+        header_size = first_size
+        if header_size is None and isinstance(pairs, list) and pairs and pairs[0].left.is_file():
+            header_size = _size(pairs[0].left, "left")
         calibration = read_calibration(args.calib, image_size=header_size, units=args.calib_units,
                                        rectified=args.rectified)
 
@@ -202,10 +236,12 @@ def run(args: argparse.Namespace) -> int:
                                   max_request_bytes=limits.max_request_bytes, prepare_for=prepare_for)
     runner = _Runner(args, matcher, options, targets, calibration, limits,
                      loaded=time.perf_counter() - started)
+    if isinstance(pairs, StereoVideo):
+        return runner.many(runner.video_items(pairs, _shard(args.shard)), _video_total(pairs, args), started)
     if not batch:
         runner.one(pairs[0])
         return 0
-    return runner.many(pairs, started)
+    return runner.many(runner.file_items(pairs), len(pairs), started)
 
 
 class _Runner:
@@ -220,11 +256,17 @@ class _Runner:
         self.load_seconds = loaded
         self._calibrations: dict[tuple[int, int], StereoCalibration] = {}
 
-    def one(self, pair: _Pair) -> None:
+    def one(self, pair: _Pair | _Frames) -> None:
         begun = time.perf_counter()
-        size = _check_request(pair, self.matcher.manifest, self.limits, self.options)
-        left, right = read_pair(pair.left, _right_path(pair), names=(f"left image {str(pair.left)!r}",
-                                                                      f"right image {str(pair.right)!r}"))
+        if isinstance(pair, _Frames):
+            left, right = pair.left, pair.right
+            size = _check_size((left.shape[0], left.shape[1]), self.matcher.manifest, self.limits,
+                               self.options)
+            begun -= pair.decode_seconds
+        else:
+            size = _check_request(pair, self.matcher.manifest, self.limits, self.options)
+            left, right = read_pair(pair.left, _right_path(pair), names=(f"left image {str(pair.left)!r}",
+                                                                          f"right image {str(pair.right)!r}"))
         calibration = self._calibration_for(size)
         if calibration is not None and calibration.needs_rectification:
             if self.rectifier is None:
@@ -248,7 +290,7 @@ class _Runner:
         if calibration is not None and (write.depth or write.pointcloud):
             self._metric(name, calibration, result, left)
         if not self.args.no_check:
-            self._diagnose(pair, left, right, result)
+            self._diagnose(pair.name, left, right, result)
         if self.args.timings:
             stages = {stage: seconds for stage, seconds in result.timings.items() if stage != "total"}
             timings = {"load_model": self.load_seconds, "decode": decoded - begun, **stages}
@@ -259,19 +301,55 @@ class _Runner:
             rounded = {stage: round(seconds, 6) for stage, seconds in timings.items()}
             print(json.dumps(rounded), file=sys.stderr)
 
-    def many(self, pairs: list[_Pair], started: float) -> int:
+    def file_items(self, pairs: list[_Pair]) -> Iterator[_Item]:
+        for pair in pairs:
+            yield _Skipped(pair.name) if self._written(pair.name) else pair
+
+    def video_items(self, video: StereoVideo, shard: tuple[int, int] | None) -> Iterator[_Item]:
+        """The shard's frames of ``video`` as pairs, decoded as they are reached; frames of other shards
+        and --skip-existing ones are passed over (StereoVideo.pairs: not converted, not decoded where the
+        codec allows)."""
+        first, step = shard or (0, 1)
+
+        def wanted(index: int) -> bool:
+            return index % step == first and not self._written(_frame_name(index))
+
+        frames, index = video.pairs(wanted), -1
+        while True:
+            begun = time.perf_counter()
+            try:
+                frame = next(frames)
+            except StopIteration:
+                return
+            except ValueError as error:  # the stream cannot go on: the failure ends the video
+                yield _Failed(_frame_name(index + 1), str(error))
+                return
+            index = frame.index
+            if index % step != first:
+                continue
+            name = _frame_name(index)
+            if frame.error is not None:
+                yield _Failed(name, frame.error)
+            elif frame.views is None:
+                yield _Skipped(name)
+            else:
+                yield _Frames(name, *frame.views, time.perf_counter() - begun)
+
+    def many(self, items: Iterator[_Item], total: int | None, started: float) -> int:
         failed: list[str] = []
         skipped = done = 0
-        total = len(pairs)
-        for index, pair in enumerate(pairs, start=1):
-            target = self.targets.path(self.targets.disparity, pair.name)
-            if self.args.skip_existing and target.exists():
+        for index, pair in enumerate(items, start=1):
+            if isinstance(pair, _Skipped):
                 skipped += 1
                 continue
             begun = time.perf_counter()
             try:
-                if pair.right is None:
+                if isinstance(pair, _Failed):
+                    raise ValueError(pair.reason)
+                if isinstance(pair, _Pair) and pair.right is None:
                     raise ValueError(f"no right image named like {pair.left.name}")
+                if isinstance(pair, _Frames):
+                    begun -= pair.decode_seconds
                 self.one(pair)
             except (OSError, ValueError) as error:
                 failed.append(pair.name)
@@ -279,8 +357,8 @@ class _Runner:
                 continue
             done += 1
             rate = done / max(time.perf_counter() - started, 1e-9)
-            print(f"[{index}/{total}] {pair.name} {time.perf_counter() - begun:.2f} s ({rate:.2f} pairs/s)",
-                  file=sys.stderr)
+            print(f"[{index}/{'?' if total is None else total}] {pair.name} "
+                  f"{time.perf_counter() - begun:.2f} s ({rate:.2f} pairs/s)", file=sys.stderr)
         elapsed = time.perf_counter() - started
         summary = f"adsm: {done} pairs written, {skipped} skipped, {len(failed)} failed in {elapsed:.1f} s"
         if done:
@@ -289,6 +367,10 @@ class _Runner:
             summary += ": " + ", ".join(failed[:10]) + (" ..." if len(failed) > 10 else "")
         print(summary, file=sys.stderr)
         return 1 if failed else 0
+
+    def _written(self, name: str) -> bool:
+        """--skip-existing and the pair's disparity file is there."""
+        return bool(self.args.skip_existing) and self.targets.path(self.targets.disparity, name).exists()
 
     def _calibration_for(self, size: tuple[int, int]) -> StereoCalibration | None:
         """The calibration for images of ``size``: as read, or scaled (Middlebury F/H/Q sizes)."""
@@ -331,34 +413,69 @@ class _Runner:
                                            cy=calibration.cy, focal_y_px=calibration.focal_y_px)
             _write(self.targets.path(self.targets.pointcloud, name), lambda target: target.write_bytes(body))
 
-    def _diagnose(self, pair: _Pair, left: np.ndarray, right: np.ndarray, result: StereoResult) -> None:
+    def _diagnose(self, name: str, left: np.ndarray, right: np.ndarray, result: StereoResult) -> None:
         from service.calibration.pair_check import check_pair
         from service.validation.codes import Validity
 
         valid_share = float((result.validity == Validity.VALID).mean()) if self.options.lr_check else None
         check = check_pair(left, right, max_disparity=self.args.max_disparity or left.shape[1] // 4)
         for warning in check.warnings(valid_share=valid_share):
-            print(f"adsm: warning: {pair.name}: {warning}", file=sys.stderr)
+            print(f"adsm: warning: {name}: {warning}", file=sys.stderr)
 
 
-def _pairs(args: argparse.Namespace) -> tuple[list[_Pair], bool]:
+def _pairs(args: argparse.Namespace) -> tuple[list[_Pair] | StereoVideo, bool]:
     sources = [args.left is not None, args.data is not None, args.pairs is not None]
     if sum(sources) != 1:
-        raise ValueError("give LEFT RIGHT, or --data DIR, or --pairs LIST (exactly one of them)")
+        raise ValueError("give LEFT RIGHT, or --data SPEC, or --pairs LIST (exactly one of them)")
     if args.left is not None:
         if args.right is None:
             raise ValueError("RIGHT is missing: give LEFT RIGHT")
         return [_Pair(args.left.stem, args.left, args.right)], False
-    pairs = _folder_pairs(args.data) if args.data is not None else _listed_pairs(args.pairs)
-    if args.shard is not None:
-        index, count = _shard(args.shard)
+    shard = _shard(args.shard)  # a bad I/N is refused before a video is opened
+    videos = _videos(args.data) if args.data is not None else None
+    if videos is not None:
+        return StereoVideo.open(*videos, warn=_warn), True
+    pairs = _folder_pairs(Path(args.data)) if args.data is not None else _listed_pairs(args.pairs)
+    if shard is not None:
+        index, count = shard
         pairs = pairs[index::count]
     return pairs, True
 
 
+def _videos(spec: str) -> tuple[Path, Path | None] | None:
+    """``(left, right)`` video files of a --data SPEC, ``(video, None)`` for ``sbs:VIDEO``, None for a
+    folder. ``A,B`` splits at the comma that leaves two existing files (a name may hold a comma)."""
+    if spec.startswith(_SIDE_BY_SIDE):
+        return Path(spec[len(_SIDE_BY_SIDE):]), None
+    if Path(spec).is_dir():
+        return None
+    if "," in spec:
+        splits = [(Path(spec[:at]), Path(spec[at + 1:])) for at, char in enumerate(spec) if char == ","]
+        return next((split for split in splits if split[0].is_file() and split[1].is_file()), splits[0])
+    if Path(spec).is_file():
+        raise ValueError(f"--data {spec!r} is one file: give two videos as LEFT,RIGHT, or "
+                         f"{_SIDE_BY_SIDE}VIDEO for a side-by-side video, or a folder")
+    return None
+
+
+def _video_total(video: StereoVideo, args: argparse.Namespace) -> int | None:
+    """How many pairs this run's shard holds by the headers (None when a container does not tell)."""
+    first, step = _shard(args.shard) or (0, 1)
+    return None if video.frame_count is None else len(range(first, video.frame_count, step))
+
+
+def _frame_name(index: int) -> str:
+    return f"frame_{index:06d}"
+
+
+def _warn(message: str) -> None:
+    print(f"adsm: warning: {message}", file=sys.stderr)
+
+
 def _folder_pairs(root: Path) -> list[_Pair]:
     if not root.is_dir():
-        raise ValueError(f"--data {str(root)!r} is not a folder")
+        raise ValueError(f"--data {str(root)!r} is not a folder (nor LEFT,RIGHT or "
+                         f"{_SIDE_BY_SIDE}VIDEO videos)")
     for left_name, right_name in _LAYOUTS:
         left_dir, right_dir = root / left_name, root / right_name
         if left_dir.is_dir() and right_dir.is_dir():
@@ -393,7 +510,9 @@ def _listed_pairs(listing: Path) -> list[_Pair]:
     return pairs
 
 
-def _shard(text: str) -> tuple[int, int]:
+def _shard(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
     try:
         index, count = (int(part) for part in text.split("/"))
     except ValueError:
@@ -433,7 +552,12 @@ def _check_request(pair: _Pair, manifest: dict[str, Any], limits: RequestLimits,
                    ) -> tuple[int, int]:
     """The pair's (height, width) once its headers pass every rule the server applies (service/limits.py):
     sizes, range, pixels, cost cells, memory plan; a LimitError or DisparityRangeError otherwise."""
-    size = _check_sizes(pair)
+    return _check_size(_check_sizes(pair), manifest, limits, options)
+
+
+def _check_size(size: tuple[int, int], manifest: dict[str, Any], limits: RequestLimits,
+                options: MatchOptions) -> tuple[int, int]:
+    """``size`` (height, width) once a pair of that size passes the server's rules (see above)."""
     check_request(*size, manifest, limits, min_disparity=options.min_disparity,
                   max_disparity=options.max_disparity, who="adsm predict")
     return size
