@@ -3,6 +3,7 @@ iterations), the seeded 75/25 split, resume, the table's shape, and the Kubernet
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from PIL import Image
 
 from service.datasets import open_dataset
 from service.io import write_disparity
+from service.matcher import MatchOptions
 from training.reproduce.__main__ import main, selected_index
 from training.reproduce.run import Execution, Protocol, training_command
 from training.reproduce.split import split_names
@@ -91,7 +93,10 @@ def test_whole_command_on_a_kitti_fixture(tmp_path, capsys):
         switches = {k for k, v in result["pipeline"]["options"].items() if isinstance(v, bool)}
         assert {"sgm", "subpixel", "lr_check", "fill"} <= switches
         assert not any(result["network"]["options"][k] for k in switches)
-        assert all(result["pipeline"]["options"][k] for k in switches)
+        # The pipeline row runs the runtime's defaults: every step on; output flags (confidence) stay off.
+        defaults = {field.name: field.default for field in dataclasses.fields(MatchOptions)}
+        assert all(result["pipeline"]["options"][k] == defaults[k] for k in switches)
+        assert all(result["pipeline"]["options"][k] for k in switches - {"confidence"})
         assert result["network"]["pairs"] == result["pipeline"]["pairs"] == 2
 
     # The table: Table 6's rows in the paper's order, 2/3/4/5-pixel errors, ours beside the paper's.
