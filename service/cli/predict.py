@@ -9,13 +9,19 @@ Many pairs in one process (the model is loaded and the kernels compiled once)::
     adsm predict --data RIG_DIR -o 'out/{name}.png' [--depth 'out/{name}.npy'] [--shard I/N]
     adsm predict --pairs LIST.txt --out-dir out/
     adsm predict --data left.mp4,right.mp4 --out-dir out/       # or --data sbs:side_by_side.mp4
+    adsm predict --data kitti2015:/data/kitti --out-dir out/     # any `adsm eval` dataset SPEC
 
 ``--data DIR`` pairs the files of the same name in ``DIR/left`` and ``DIR/right`` (also ``image_2`` /
 ``image_3`` and ``image_02/data`` / ``image_03/data``, KITTI's layouts); ``--pairs FILE`` lists one
 ``LEFT RIGHT`` pair per line; ``--data LEFT_VIDEO,RIGHT_VIDEO`` takes frame i of each video as pair i
 and ``--data sbs:VIDEO`` splits each frame of one side-by-side video in halves (service/io/video.py, the
-``video`` extra; frames are decoded one at a time, named ``frame_000123``). Output paths are templates
-holding ``{name}`` (the left file's stem, or the frame's name);
+``video`` extra; frames are decoded one at a time, named ``frame_000123``). ``--data KIND:ARGUMENT`` takes
+the pairs of an ``adsm eval`` dataset SPEC (service/datasets: ``kitti2012:PATH``, ``kitti2015:PATH``,
+``middlebury:PATH``, ``cones:PATH``, ``synthetic[:N]`` with the train extra), the same pairs eval scores,
+named as eval names them; a folder in none of the left/right layouts is read as a dataset folder. Their
+ground truth is not read; without --max-disparity each pair is searched over the range its dataset
+recommends, fitted to the image as eval fits it. Output paths are templates holding ``{name}`` (the left
+file's stem, the frame's or the dataset pair's name);
 ``--out-dir DIR`` is short for ``-o DIR/{name}.<format>``. A progress line per pair and a summary go to
 stderr; a pair that fails is reported and skipped, the others are still written, and the exit status is
 1 if any failed.
@@ -39,9 +45,11 @@ import dataclasses
 import json
 import math
 import os
+import re
 import sys
 import time
-from collections.abc import Callable, Iterator
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -49,8 +57,11 @@ import numpy as np
 from PIL import Image
 
 from service.cli.match_flags import add_match_flags, match_options
+from service.datasets import StereoSample, extensions, open_dataset
+from service.datasets.readers import READERS, PairList, detect_kind
 from service.features import default_model_dir, load_manifest
 from service.io import FORMATS, format_for_path, image_size, read_pair, write_disparity
+from service.io.confidence import encode_confidence
 from service.io.video import StereoVideo
 from service.limits import ENVIRONMENT, RequestLimits, check_request
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
@@ -63,6 +74,9 @@ if TYPE_CHECKING:  # imported when a pair runs: `adsm --help` must not pay for N
 _EXTENSION = {"png16": ".png", "npy": ".npy", "pfm": ".pfm", "color": ".png"}
 _LAYOUTS = (("left", "right"), ("image_2", "image_3"), ("image_02/data", "image_03/data"))
 _SIDE_BY_SIDE = "sbs:"  # --data sbs:VIDEO
+# A SPEC's "WORD:" prefix: one that names no dataset kind is refused as such, not as a missing folder (two
+# letters or more: "C:" starts a Windows path).
+_KIND_PREFIX = re.compile(r"[A-Za-z][A-Za-z0-9_-]+:")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -80,7 +94,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     batch.add_argument("--data", metavar="SPEC",
                        help="folder with left/ and right/ (or image_2/ image_3/) holding files of the "
                        "same names; LEFT_VIDEO,RIGHT_VIDEO (frame i of each is pair i); sbs:VIDEO (left "
-                       "view in the left half of each frame); videos need the video extra")
+                       "view in the left half of each frame; videos need the video extra); or an adsm "
+                       "eval dataset: kitti2012:PATH, kitti2015:PATH, middlebury:PATH, cones:PATH, "
+                       "synthetic[:N] (train extra)")
     batch.add_argument("--pairs", type=Path, metavar="LIST", help="text file, one 'LEFT RIGHT' pair per line")
     batch.add_argument("--out-dir", type=Path, metavar="DIR", help="short for -o DIR/{name}.<format>")
     batch.add_argument("--skip-existing", action="store_true", help="skip pairs whose disparity file exists")
@@ -131,16 +147,25 @@ class _Pair:
     name: str
     left: Path
     right: Path | None  # None: the right image is missing (reported as a failed pair)
+    max_disparity: int | None = None  # the search range a dataset recommends (StereoSample's)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class _Frames:
-    """A pair decoded from a video."""
+    """A pair decoded from a video, or drawn from a dataset that is not files on disk (synthetic)."""
 
     name: str
     left: np.ndarray
     right: np.ndarray
     decode_seconds: float
+    max_disparity: int | None = None
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Samples:
+    """A dataset whose pairs are made on access (``synthetic:N``): drawn one at a time as they are reached."""
+
+    dataset: Sequence[StereoSample]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,14 +228,18 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--depth and --pointcloud need --calib FILE (focal length and baseline)")
     manifest = load_manifest(args.model if args.model is not None else default_model_dir())
     options = dataclasses.replace(match_options(args), confidence=targets.confidence is not None)
-    first_size = None
+    first_size, first_options = None, options
     if isinstance(pairs, StereoVideo):  # every frame has the header's size: refuse before the model loads
         first_size = _check_size(pairs.size, manifest, limits, options)
+    elif isinstance(pairs, _Samples):
+        pass  # a pair's size is known once it is drawn
     elif not batch:  # refuse before the model loads, from the headers alone
         first_size = _check_request(pairs[0], manifest, limits, options)
     elif pairs and pairs[0].right is not None:
         try:  # only to prepare the first call: a bad pair is reported in its turn
-            first_size = _check_request(pairs[0], manifest, limits, options)
+            first_size = _check_sizes(pairs[0])
+            first_options = _search_options(options, pairs[0].max_disparity, first_size[1])
+            _check_size(first_size, manifest, limits, first_options)
         except (OSError, ValueError):
             first_size = None
 
@@ -231,13 +260,17 @@ def run(args: argparse.Namespace) -> int:
     # decode; the first call waits for the rest (Matcher.prepare; docs/performance.md, "First call").
     prepare_for = None
     if first_size is not None and os.environ.get(PREPARE_ENV, "1").strip() != "0":
-        prepare_for = (*first_size, options)
+        prepare_for = (*first_size, first_options)
     matcher = Matcher.from_folder(args.model, threads=args.threads,
                                   max_request_bytes=limits.max_request_bytes, prepare_for=prepare_for)
     runner = _Runner(args, matcher, options, targets, calibration, limits,
                      loaded=time.perf_counter() - started)
     if isinstance(pairs, StereoVideo):
         return runner.many(runner.video_items(pairs, _shard(args.shard)), _video_total(pairs, args), started)
+    if isinstance(pairs, _Samples):
+        first, step = _shard(args.shard) or (0, 1)
+        indices = range(first, len(pairs.dataset), step)
+        return runner.many(runner.sample_items(pairs.dataset, indices), len(indices), started)
     if not batch:
         runner.one(pairs[0])
         return 0
@@ -254,20 +287,22 @@ class _Runner:
         self.limits = limits
         self.rectifier: Rectifier | None = None
         self.load_seconds = loaded
-        self._calibrations: dict[tuple[int, int], StereoCalibration] = {}
 
     def one(self, pair: _Pair | _Frames) -> None:
         begun = time.perf_counter()
         if isinstance(pair, _Frames):
-            left, right = pair.left, pair.right
-            size = _check_size((left.shape[0], left.shape[1]), self.matcher.manifest, self.limits,
-                               self.options)
+            size = (pair.left.shape[0], pair.left.shape[1])
             begun -= pair.decode_seconds
         else:
-            size = _check_request(pair, self.matcher.manifest, self.limits, self.options)
+            size = _check_sizes(pair)
+        options = _search_options(self.options, pair.max_disparity, size[1])
+        _check_size(size, self.matcher.manifest, self.limits, options)
+        if isinstance(pair, _Frames):
+            left, right = pair.left, pair.right
+        else:
             left, right = read_pair(pair.left, _right_path(pair), names=(f"left image {str(pair.left)!r}",
                                                                           f"right image {str(pair.right)!r}"))
-        calibration = self._calibration_for(size)
+        calibration = None if self.calibration is None else self.calibration.for_size(*size)
         if calibration is not None and calibration.needs_rectification:
             if self.rectifier is None:
                 from service.calibration.rectify import Rectifier
@@ -275,7 +310,7 @@ class _Runner:
                 self.rectifier = Rectifier(calibration)
             left, right = self.rectifier(left, right)
         decoded = time.perf_counter()
-        result = self.matcher(left, right, self.options)
+        result = self.matcher(left, right, options)
         matched = time.perf_counter()
         name = pair.name
         write = self.targets
@@ -286,7 +321,9 @@ class _Runner:
         if write.confidence is not None:
             confidence = result.confidence
             assert confidence is not None  # options.confidence follows --confidence (run)
-            _write(write.path(write.confidence, name), lambda path: _write_confidence(path, confidence))
+            kind = "npy" if Path(write.confidence).suffix.lower() == ".npy" else "png"  # as _targets allows
+            data = encode_confidence(confidence, kind)
+            _write(write.path(write.confidence, name), lambda path: path.write_bytes(data))
         if calibration is not None and (write.depth or write.pointcloud):
             self._metric(name, calibration, result, left)
         if not self.args.no_check:
@@ -368,25 +405,29 @@ class _Runner:
         print(summary, file=sys.stderr)
         return 1 if failed else 0
 
+    def sample_items(self, dataset: Sequence[StereoSample], indices: range) -> Iterator[_Item]:
+        """The pairs ``indices`` of ``dataset``, each drawn when it is reached; a pair's name is known once
+        it is drawn, so --skip-existing skips it after that (generating is what there is to save)."""
+        seen: set[str] = set()
+        for index in indices:
+            begun = time.perf_counter()
+            try:
+                sample = dataset[index]
+            except (OSError, ValueError) as error:
+                yield _Failed(f"pair {index}", str(error))
+                continue
+            if sample.name in seen:  # its outputs would overwrite the other pair's
+                yield _Failed(sample.name, "another pair of the dataset has this name")
+            elif self._written(sample.name):
+                yield _Skipped(sample.name)
+            else:
+                yield _Frames(sample.name, sample.left, sample.right, time.perf_counter() - begun,
+                              sample.max_disparity)
+            seen.add(sample.name)
+
     def _written(self, name: str) -> bool:
         """--skip-existing and the pair's disparity file is there."""
         return bool(self.args.skip_existing) and self.targets.path(self.targets.disparity, name).exists()
-
-    def _calibration_for(self, size: tuple[int, int]) -> StereoCalibration | None:
-        """The calibration for images of ``size``: as read, or scaled (Middlebury F/H/Q sizes)."""
-        calibration = self.calibration
-        if calibration is None or calibration.size is None or calibration.size == size:
-            return calibration
-        if size not in self._calibrations:
-            factor_y, factor_x = size[0] / calibration.size[0], size[1] / calibration.size[1]
-            if calibration.needs_rectification or abs(factor_x * calibration.size[0] - size[0]) > 1.0:
-                raise ValueError(
-                    f"{calibration.source}: calibrated for {calibration.size[1]}x{calibration.size[0]} "
-                    f"images, got {size[1]}x{size[0]}"
-                )
-            del factor_y
-            self._calibrations[size] = calibration.scaled(factor_x)
-        return self._calibrations[size]
 
     def _metric(self, name: str, calibration: StereoCalibration, result: StereoResult,
                 left: np.ndarray) -> None:
@@ -423,7 +464,7 @@ class _Runner:
             print(f"adsm: warning: {name}: {warning}", file=sys.stderr)
 
 
-def _pairs(args: argparse.Namespace) -> tuple[list[_Pair] | StereoVideo, bool]:
+def _pairs(args: argparse.Namespace) -> tuple[list[_Pair] | StereoVideo | _Samples, bool]:
     sources = [args.left is not None, args.data is not None, args.pairs is not None]
     if sum(sources) != 1:
         raise ValueError("give LEFT RIGHT, or --data SPEC, or --pairs LIST (exactly one of them)")
@@ -432,10 +473,16 @@ def _pairs(args: argparse.Namespace) -> tuple[list[_Pair] | StereoVideo, bool]:
             raise ValueError("RIGHT is missing: give LEFT RIGHT")
         return [_Pair(args.left.stem, args.left, args.right)], False
     shard = _shard(args.shard)  # a bad I/N is refused before a video is opened
-    videos = _videos(args.data) if args.data is not None else None
-    if videos is not None:
-        return StereoVideo.open(*videos, warn=_warn), True
-    pairs = _folder_pairs(Path(args.data)) if args.data is not None else _listed_pairs(args.pairs)
+    if args.data is not None and _names_a_dataset(args.data):
+        found = _dataset(args.data)
+        if isinstance(found, _Samples):
+            return found, True  # sharded as it is drawn (run)
+        pairs = found
+    else:
+        videos = _videos(args.data) if args.data is not None else None
+        if videos is not None:
+            return StereoVideo.open(*videos, warn=_warn), True
+        pairs = _folder_pairs(Path(args.data)) if args.data is not None else _listed_pairs(args.pairs)
     if shard is not None:
         index, count = shard
         pairs = pairs[index::count]
@@ -472,8 +519,44 @@ def _warn(message: str) -> None:
     print(f"adsm: warning: {message}", file=sys.stderr)
 
 
+def _dataset_kinds() -> list[str]:
+    """The kinds an ``adsm eval`` SPEC may start with: the readers' and those of extras (installed or not)."""
+    return [*READERS, *sorted(set(extensions.EXTRA_KINDS) | set(extensions.registered()))]
+
+
+def _names_a_dataset(spec: str) -> bool:
+    """True when ``spec`` starts with a dataset kind (``kitti2015:PATH``, ``synthetic``); an existing file
+    or folder named like a bare kind ("cones") is that file or folder, as open_dataset reads it."""
+    kind, colon, _ = spec.partition(":")
+    return kind in _dataset_kinds() and (bool(colon) or not Path(spec).exists())
+
+
+def _dataset(spec: str) -> list[_Pair] | _Samples:
+    """The pairs of an ``adsm eval`` dataset SPEC, in eval's order and with eval's names. Pairs on disk are
+    read as the folder form reads them (headers checked first; the ground truth is not read)."""
+    dataset = open_dataset(spec)
+    if not isinstance(dataset, PairList):
+        return _Samples(dataset)
+    pairs = [_Pair(files.name, files.left, files.right, files.max_disparity) for files in dataset.pairs]
+    twice = sorted(name for name, count in Counter(pair.name for pair in pairs).items() if count > 1)
+    if twice:  # Middlebury's trainingQ/ and trainingH/ hold scenes of the same names
+        raise ValueError(f"--data {spec!r}: several pairs are named {', '.join(twice[:3])}; outputs would "
+                         "collide: point --data at one folder of them")
+    return pairs
+
+
+def _spec_forms() -> str:
+    readers = ", ".join(f"{kind}:PATH" for kind in READERS)
+    return (f"{readers}, {', '.join(extensions.usages())}, LEFT_VIDEO,RIGHT_VIDEO, {_SIDE_BY_SIDE}VIDEO "
+            "or a folder with left/ and right/")
+
+
 def _folder_pairs(root: Path) -> list[_Pair]:
     if not root.is_dir():
+        prefix = _KIND_PREFIX.match(str(root))
+        if prefix:
+            raise ValueError(f"--data {str(root)!r}: unknown dataset kind {prefix.group()[:-1]!r}; "
+                             f"expected {_spec_forms()}")
         raise ValueError(f"--data {str(root)!r} is not a folder (nor LEFT,RIGHT or "
                          f"{_SIDE_BY_SIDE}VIDEO videos)")
     for left_name, right_name in _LAYOUTS:
@@ -485,8 +568,15 @@ def _folder_pairs(root: Path) -> list[_Pair]:
             if not lefts:
                 raise ValueError(f"--data: {left_dir} holds no files")
             return [_Pair(Path(name).stem, lefts[name], rights.get(name)) for name in sorted(lefts)]
-    layouts = ", ".join(f"{left}/ + {right}/" for left, right in _LAYOUTS)
-    raise ValueError(f"--data {str(root)!r}: no pair of folders ({layouts})")
+    try:
+        kind = detect_kind(root)
+    except ValueError:
+        layouts = ", ".join(f"{left}/ + {right}/" for left, right in _LAYOUTS)
+        raise ValueError(f"--data {str(root)!r}: no pair of folders ({layouts}) and no dataset layout "
+                         "(KITTI 2012/2015, Middlebury, Cones)") from None
+    found = _dataset(f"{kind}:{root}")
+    assert isinstance(found, list)  # the readers' datasets are files on disk
+    return found
 
 
 def _listed_pairs(listing: Path) -> list[_Pair]:
@@ -563,6 +653,14 @@ def _check_size(size: tuple[int, int], manifest: dict[str, Any], limits: Request
     return size
 
 
+def _search_options(options: MatchOptions, recommended: int | None, width: int) -> MatchOptions:
+    """``options`` searching a dataset pair's ``recommended`` range when --max-disparity is not given,
+    fitted to the image as adsm eval fits it (service/evaluation/evaluate.py): both match the same range."""
+    if options.max_disparity is not None or recommended is None:
+        return options
+    return dataclasses.replace(options, max_disparity=min(recommended, width - options.min_disparity))
+
+
 def _check_sizes(pair: _Pair) -> tuple[int, int]:
     left_size = _size(pair.left, "left")
     right_size = _size(_right_path(pair), "right")
@@ -596,12 +694,3 @@ def _write_validity(path: Path, validity: np.ndarray) -> None:
         np.save(path, validity, allow_pickle=False)
     else:
         Image.fromarray(validity).save(path, format="PNG")
-
-
-def _write_confidence(path: Path, confidence: np.ndarray) -> None:
-    """float32 [0, 1] as .npy, or 8-bit grey PNG (confidence x 255, rounded)."""
-    if path.suffix.lower() == ".npy":
-        np.save(path, confidence.astype(np.float32), allow_pickle=False)
-    else:
-        levels = np.rint(np.clip(confidence, 0.0, 1.0) * 255.0).astype(np.uint8)
-        Image.fromarray(levels).save(path, format="PNG")
