@@ -1,10 +1,12 @@
 """Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service,
 an instant stand-in for the Matcher, a tiny PNG pair for service tests that do not need real matching, and
-``require``: the one way a test leaves out a missing prerequisite (skipped locally, failed in CI)."""
+``require``: the one way a test leaves out a missing prerequisite (skipped locally, failed in CI). Without
+torch, ``-m "not torch"`` does not import the files marked ``torch`` as a whole (tests/train_extra.py)."""
 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import os
 import tempfile
@@ -20,11 +22,37 @@ import pytest
 # processes inherit it).
 os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "adsm-test-numba-cache"))
 from stand_in import MatcherRules
+from train_extra import MARKER, marked_as_a_whole
 
 from service import jit
 from training.data.evaluation_only import CONES_FOLDER as CONES  # ../shared/data/...; evaluation only
 
 jit.configure_cache()
+
+TORCH_INSTALLED = importlib.util.find_spec("torch") is not None
+
+
+def _deselects_the_marker(config: pytest.Config) -> bool:
+    """True when ``-m`` leaves out every test marked ``torch``, whatever its other markers."""
+    from _pytest.mark.expression import Expression  # pytest's own -m parser; no public name for it
+
+    if not config.option.markexpr:
+        return False
+    try:
+        expression = Expression.compile(config.option.markexpr)
+    except SyntaxError:
+        return False  # pytest reports the bad expression itself
+    return not any(expression.evaluate(lambda name, others=others, **_: name == MARKER or others)
+                   for others in (False, True))
+
+
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """Without torch, a test file marked ``torch`` as a whole is not imported by a run that deselects the
+    marker (``pytest -m "not torch"`` on a serve-only install): its imports would fail, and ``-m`` drops
+    each of its tests anyway. Any other run imports it and fails loudly, as does an unmarked file."""
+    if TORCH_INSTALLED or collection_path.suffix != ".py" or not collection_path.name.startswith("test_"):
+        return None
+    return True if _deselects_the_marker(config) and marked_as_a_whole(collection_path) else None
 
 
 def in_ci() -> bool:

@@ -38,6 +38,7 @@ def test_shapes_are_checked():
         fill_border_band(np.zeros((2, 3), np.float32), np.zeros((3, 2), np.uint8))
 
 
+@pytest.mark.torch
 def test_the_band_step_cuts_the_border_error_of_a_synthetic_pair():
     pair = generate(11, SyntheticConfig(height=96, width=192, max_disparity=40))
     matcher = Matcher.from_folder("service/models/ncc-baseline", threads=1)

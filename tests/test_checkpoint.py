@@ -13,6 +13,8 @@ from service.features.defaults import RUNTIME_DEFAULTS
 from training.checkpoint import FORMAT, load_checkpoint, save_checkpoint
 from training.networks import build_tower_pair
 
+pytestmark = pytest.mark.torch
+
 PROVENANCE = {"command": "python -m training.train --steps 1", "data": "synthetic", "wall_time_s": 1.5,
               "iterations": 1, "device": "cpu"}
 

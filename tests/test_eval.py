@@ -103,6 +103,7 @@ def tiny_cones(tmp_path):
     return folder
 
 
+@pytest.mark.torch
 def test_adsm_eval_prints_the_table_and_writes_json(tiny_cones, tmp_path, capsys):
     out = tmp_path / "report.json"
     code = main(["eval", "--model", str(BASELINE), "--data", f"cones:{tiny_cones}", "--max-disparity", "24",
@@ -120,12 +121,14 @@ def test_adsm_eval_prints_the_table_and_writes_json(tiny_cones, tmp_path, capsys
     assert report["all"]["bad2"] >= report["all"]["bad3"] >= report["all"]["bad5"]
 
 
+@pytest.mark.torch
 def test_adsm_eval_json_to_stdout(tiny_cones, capsys):
     assert main(["eval", "--model", str(BASELINE), "--data", str(tiny_cones), "--json", "-"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["schema"] == "adsm-eval/1" and report["per_pair"][0]["max_disparity"] == 64
 
 
+@pytest.mark.torch
 def test_adsm_eval_errors_are_one_line(tmp_path, capsys):
     assert main(["eval", "--model", str(BASELINE), "--data", "nonsense:x"]) == 1
     assert capsys.readouterr().err.startswith("adsm: error: dataset 'nonsense:x'")
@@ -142,6 +145,7 @@ def test_adsm_eval_synthetic_without_the_train_extra_is_one_line(monkeypatch, ca
     assert error.count("\n") == 1 and "Traceback" not in error
 
 
+@pytest.mark.torch
 def test_adsm_eval_switches_reach_the_matcher(tiny_cones, capsys):
     def options(*flags: str) -> dict:
         assert main(["eval", "--model", str(BASELINE), "--data", str(tiny_cones), "--json", "-", *flags]) == 0

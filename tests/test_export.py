@@ -25,6 +25,8 @@ from service.matcher import Matcher
 from training.checkpoint import save_checkpoint
 from training.networks import TowerPair, build_tower_pair, dense_features
 
+pytestmark = pytest.mark.torch
+
 PROVENANCE = {"command": "python -m training.train", "data": "synthetic", "wall_time_s": 2.0, "iterations": 5}
 
 

@@ -14,6 +14,8 @@ from training.data.samples import patch_pairs, random_crop, random_patch_pairs, 
 from training.data.synthetic import SyntheticConfig, generate
 from training.losses import dense_candidates, dense_matching_loss, matching_loss, soft_label
 
+pytestmark = pytest.mark.torch
+
 
 @pytest.fixture(scope="module")
 def pair():

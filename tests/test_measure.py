@@ -40,6 +40,7 @@ def model(tmp_path: Path) -> Path:
     return Path(shutil.copytree(SHIPPED, tmp_path / "model"))
 
 
+@pytest.mark.torch
 def test_write_records_the_figures_of_adsm_eval_with_command_and_date(model, tiny_cones, tmp_path, capsys):
     before = load_manifest(model)
     argv = ["--model", str(model), "--cones", str(tiny_cones), "--synthetic", "0", "--write"]
@@ -64,6 +65,7 @@ def test_write_records_the_figures_of_adsm_eval_with_command_and_date(model, tin
         assert entry[f"{key}_nonocc"] == report["nonoccluded"][key], key
 
 
+@pytest.mark.torch
 def test_without_write_the_manifest_is_untouched(model, tiny_cones, capsys):
     text = (model / "manifest.json").read_text()
     assert main(["--model", str(model), "--cones", str(tiny_cones)]) == 0
@@ -91,6 +93,7 @@ def test_recorded_command_reproduces_the_data_sets(tmp_path):
     assert f"--cones {tmp_path}" in command
 
 
+@pytest.mark.torch
 def test_a_tampered_folder_is_refused_not_measured(model, tiny_cones, capsys):
     data = bytearray((model / "left.onnx").read_bytes())
     data[-1] ^= 0xFF

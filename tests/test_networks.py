@@ -16,6 +16,8 @@ from training.networks import (
     split_kernels,
 )
 
+pytestmark = pytest.mark.torch
+
 # Tables 4 and 5 of the paper: conv weights of one 64-channel tower (the rows that are buildable as printed).
 PAPER_COUNTS = {
     "37-3conv": 1_416_896,

@@ -20,6 +20,7 @@ def test_the_matcher_and_its_onnx_towers_satisfy_the_protocols() -> None:
     assert isinstance(matcher, StereoMatcher) and isinstance(matcher.towers, Towers)
 
 
+@pytest.mark.torch
 def test_the_trainers_torch_towers_satisfy_towers_and_run_in_the_matcher() -> None:
     require_module("torch")
     from training.evaluation import TorchTowers

@@ -116,6 +116,7 @@ def test_shared_cones_pair_reads_as_documented(cones_dir):
     assert 0.7 < pair.nonoccluded.mean() < 1
 
 
+@pytest.mark.torch
 def test_synthetic_spec_is_the_validation_split():
     assert len(open_dataset("synthetic")) == 20
     dataset = open_dataset("synthetic:2")

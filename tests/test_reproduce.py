@@ -20,6 +20,8 @@ from training.reproduce.run import Execution, Protocol, training_command
 from training.reproduce.split import split_names
 from training.reproduce.tables import TABLES, THRESHOLDS, get_table
 
+pytestmark = pytest.mark.torch
+
 ROOT = Path(__file__).resolve().parents[1]
 PAIRS, HEIGHT, WIDTH = 8, 40, 128
 CONFIGS = ["37-1deconv5-4conv", "37-1deconv3-4conv"]

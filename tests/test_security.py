@@ -157,6 +157,7 @@ def test_disparity_files_with_objects_are_refused(tmp_path: Path) -> None:
     assert not marker.exists()
 
 
+@pytest.mark.torch
 def test_checkpoints_refuse_pickled_code(tmp_path: Path) -> None:
     torch = require_module("torch")
     from training.checkpoint import load_checkpoint

@@ -85,6 +85,7 @@ def test_renderer_refuses_an_uncovered_scene_and_edge_on_planes():
         Plane(1.0, 0, 0)
 
 
+@pytest.mark.torch
 def test_same_seed_same_pair_and_seeds_differ():
     config = SyntheticConfig(height=64, width=128, max_disparity=32)
     first, again, other = generate(7, config), generate(7, config), generate(8, config)
@@ -93,6 +94,7 @@ def test_same_seed_same_pair_and_seeds_differ():
     assert not np.array_equal(first.left, other.left)
 
 
+@pytest.mark.torch
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_generated_pairs_are_complete_and_in_range(seed):
     config = SyntheticConfig(height=96, width=192, max_disparity=48)
@@ -106,12 +108,14 @@ def test_generated_pairs_are_complete_and_in_range(seed):
     assert pair.left.std() > 5 and pair.right.std() > 5
 
 
+@pytest.mark.torch
 def test_kitti_sized_pairs_reach_large_disparities():
     config = SyntheticConfig(height=375, width=1242, max_disparity=192)
     largest = max(float(generate(seed, config).disparity.max()) for seed in (11, 12))
     assert 150 < largest <= 192 + 1e-3
 
 
+@pytest.mark.torch
 def test_validation_split_is_fixed_seeds_of_a_fixed_config():
     split = validation_split(3)
     assert len(split) == 3 and [split[i].name for i in range(3)] == [
@@ -122,6 +126,7 @@ def test_validation_split_is_fixed_seeds_of_a_fixed_config():
         split[3]
 
 
+@pytest.mark.torch
 def test_photos_are_bundled_natural_images_and_never_a_stereo_pair():
     photos = load_photos()
     assert len(photos) == len(PHOTOS) >= 10

@@ -21,6 +21,8 @@ from training.train import build_parser, main, recorded_command
 from training.trainer import BatchSpec, TrainConfig, TrainingData, train
 from training.trainer.objective import Objective
 
+pytestmark = pytest.mark.torch
+
 # The evaluation-only real pair, beside the checkout as in CI.
 
 TINY = dict(channels=4, crop=(48, 96), max_disparity=24, batch_size=2, val_pairs=1, cones="", threads=1)

@@ -21,6 +21,8 @@ from training.networks import build_tower_pair
 from training.trainer import BatchSpec, TrainConfig, TrainingData
 from training.trainer.objective import Objective
 
+pytestmark = pytest.mark.torch
+
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG, CROP, MAX_DISPARITY, CHANNELS, LR = "37-1deconv5-4conv", (48, 96), 24, 4, 1e-3
 # Step s, rank r, 2 examples per process: examples (2s + r) * 2 + k (training/trainer/batches.py).
