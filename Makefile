@@ -1,9 +1,11 @@
-# One venv in .venv; every target installs what it needs, so each works on a fresh machine.
+# One venv in .venv (and .venv-serve for the serve-only suite); every target installs what it needs, so each
+# works on a fresh machine.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
+SERVE_VENV := .venv-serve
 
-.PHONY: setup setup-serve test test-fast lint demo bench
+.PHONY: setup setup-serve test test-serve test-fast lint demo bench
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,11 +27,24 @@ demo: setup-serve
 		-o out/cones-disparity-color.png --format color --max-disparity 64
 	@echo "wrote out/cones-disparity.png (KITTI uint16) and out/cones-disparity-color.png"
 
-# ruff, then the type checker on service/ (pyproject.toml [tool.mypy]), then the whole suite.
+# ruff, then the type checker on service/ (pyproject.toml [tool.mypy]), then the whole suite, then the
+# serve-only suite.
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q
+	$(MAKE) --no-print-directory test-serve
+
+$(SERVE_VENV)/bin/python:
+	$(PYTHON) -m venv $(SERVE_VENV)
+	$(SERVE_VENV)/bin/pip install --quiet --upgrade pip
+
+# The serve-only suite: the runtime as the service image installs it (no torch, scikit-image or SciPy),
+# with the video extra and the test tools, in a venv of its own; every test not marked torch (train extra)
+# or slow (the whole suite above runs those).
+test-serve: $(SERVE_VENV)/bin/python
+	$(SERVE_VENV)/bin/pip install --quiet -e '.[serve,video,test]'
+	$(SERVE_VENV)/bin/pytest -q -m "not torch and not slow"
 
 test-fast: setup
 	$(BIN)/pytest -q -m "not slow"

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib.metadata
+import itertools
 import re
 import subprocess
 import sys
@@ -20,6 +21,24 @@ HIDE_TORCH = 'import sys\nsys.modules["torch"] = None\n'
 def test_every_test_that_needs_the_train_extra_is_marked():
     problems = [problem for path in sorted(TESTS.rglob("test_*.py")) for problem in unmarked_needs(path)]
     assert problems == [], "mark with pytest.mark.torch (pyproject.toml [tool.pytest.ini_options].markers)"
+
+
+def test_make_test_ends_with_the_serve_only_suite():
+    """CI runs `make test` (.ci/run, README); its last step is test-serve: a venv without the train and
+    bench extras, every test not marked torch."""
+    lines = (ROOT / "Makefile").read_text(encoding="utf-8").splitlines()
+
+    def recipe(target: str) -> list[str]:
+        start = next(number for number, line in enumerate(lines) if line.startswith(f"{target}:"))
+        return list(itertools.takewhile(lambda line: line.startswith("\t"), lines[start + 1:]))
+
+    assert recipe("test")[-1].split()[-1] == "test-serve"
+    install, run = recipe("test-serve")
+    extras = re.search(r"'\.\[(.*)\]'", install).group(1).split(",")
+    assert "-e" in install.split() and set(extras) == {"serve", "video", "test"}
+    assert run.split()[0] == "$(SERVE_VENV)/bin/pytest" and '-m "not torch and not slow"' in run
+    assert (ROOT / ".ci" / "run").read_text(encoding="utf-8").rstrip().endswith("\nmake test")
+    assert "\nmake test    # " in (ROOT / "README.md").read_text(encoding="utf-8")  # the README's command
 
 
 def test_what_every_run_loads_needs_no_train_extra():

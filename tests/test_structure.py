@@ -186,7 +186,7 @@ def test_the_runtime_ships_its_types_and_make_test_checks_them():
     assert any(requirement.startswith("mypy==") for requirement in dev)  # pinned: a new release may flag more
     make_test = (ROOT / "Makefile").read_text(encoding="utf-8").split("\ntest:")[1].split("\n\n")[0]
     assert [line.split()[0] for line in make_test.splitlines()[1:]] == [
-        "$(BIN)/ruff", "$(BIN)/mypy", "$(BIN)/pytest"]
+        "$(BIN)/ruff", "$(BIN)/mypy", "$(BIN)/pytest", "$(MAKE)"]  # the last: test-serve (test_markers.py)
 
 
 def test_the_cli_reports_a_bad_model_folder_in_one_place():
