@@ -1,8 +1,13 @@
 """Stereo calibration: Middlebury, KITTI and OpenCV files -> one :class:`StereoCalibration`.
 
+>>> import pathlib, tempfile
 >>> from service.calibration import read_calibration
->>> calib = read_calibration("calib.txt")          # doctest: +SKIP
->>> calib.focal_px, calib.baseline_m, calib.doffs  # doctest: +SKIP
+>>> path = pathlib.Path(tempfile.mkdtemp(), "calib.txt")   # a Middlebury calib.txt
+>>> _ = path.write_text("cam0=[700 0 300; 0 700 200; 0 0 1]\\ncam1=[700 0 310; 0 700 200; 0 0 1]\\n"
+...                     "baseline=100")
+>>> calib = read_calibration(path)
+>>> calib.focal_px, calib.baseline_m, calib.doffs
+(700.0, 0.1, 10.0)
 
 The format is told from the file: OpenCV by extension (.yml, .yaml, .xml, .json, .gz), otherwise
 Middlebury (``cam0=`` line) or KITTI (``P_rect_02:`` / ``P2:`` lines). Every reader raises

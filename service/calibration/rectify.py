@@ -18,8 +18,8 @@ from service.calibration.model import Rectification, StereoCalibration
 class Rectifier:
     """Warps raw left/right images into the rectified frame of ``calibration``.
 
-    >>> rectifier = Rectifier(calibration)               # doctest: +SKIP
-    >>> left, right = rectifier(raw_left, raw_right)     # doctest: +SKIP
+    >>> rectifier = Rectifier(calibration)             # a raw rig's file  # doctest: +SKIP
+    >>> left, right = rectifier(raw_left, raw_right)   # images from its cameras  # doctest: +SKIP
     """
 
     def __init__(self, calibration: StereoCalibration) -> None:
