@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cones_folder, require_module
+from helpers import cones_folder, require_module
 
 from service.calibration import CalibrationError, StereoCalibration, read_calibration
 from service.calibration.pair_check import SWAPPED_SHARE, VERTICAL_PX, check_pair
@@ -226,3 +226,13 @@ def test_pair_check_on_cones(cones):
     assert abs(lowered.vertical_offset_px) > VERTICAL_PX
     assert any("rectified" in warning for warning in lowered.warnings())
     assert any("left-right check" in warning for warning in normal.warnings(valid_share=0.3))
+
+
+@pytest.mark.parametrize("shape", [(64, 32768), (8, 262144), (3, 3), (2048, 6)])
+def test_pair_check_judges_nothing_on_strips_too_thin_to_measure(shape):
+    # A 64 x 32768 strip reduces to no rows at all; the check must say nothing rather than fail the request.
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    found = check_pair(left, left.copy())
+    assert found.voting_pixels == 0 and found.tiles == 0
+    assert found.warnings() == []

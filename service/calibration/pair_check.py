@@ -29,6 +29,7 @@ VERTICAL_PX = 1.25
 MIN_TILES = 3  # tiles with a clear row-profile peak needed before a vertical offset is believed
 LOW_VALID_SHARE = 0.5
 _MIN_TEXTURE = 2.0  # grey levels of local standard deviation (reduced image) for a pixel to vote
+_MIN_SIDE = 8  # reduced rows and columns below which a pair is not judged (census 5x5 + box 5x5)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,6 +88,11 @@ def check_pair(left: np.ndarray, right: np.ndarray, *, max_disparity: int | None
     scale = max(1, int(np.ceil(width / TARGET_WIDTH)))
     small_left, small_right = _reduce(grey_left, scale), _reduce(grey_right, scale)
     rows, cols = small_left.shape
+    if rows < _MIN_SIDE or cols < _MIN_SIDE:
+        # Too few pixels left after the reduction (a strip such as 64 x 32768 becomes 0 rows): nothing to
+        # judge, so nothing to warn about.
+        return PairCheck(negative_share=0.0, vertical_offset_px=0.0, vertical_spread_px=0.0, tiles=0,
+                         voting_pixels=0, scale=scale)
     limit = width // 4 if max_disparity is None else max_disparity
     reach = int(max(2, min(np.ceil(limit / scale), cols // 2 - 3)))
     census_left, census_right = _census(small_left), _census(small_right)
