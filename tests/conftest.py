@@ -1,19 +1,13 @@
-"""Shared fixtures: a throw-away Numba cache, unit-norm random feature maps, a ready in-process service,
-an instant stand-in for the Matcher, a tiny PNG pair for service tests that do not need real matching, and
-``require``: the one way a test leaves out a missing prerequisite (skipped locally, failed in CI). Without
-torch, ``-m "not torch"`` does not import the files marked ``torch`` as a whole (tests/train_extra.py)."""
+"""Fixtures and hooks only (what tests share otherwise is in helpers.py): a throw-away Numba cache for the
+whole run, the Cones pair's folder, a seeded random generator. Without torch, ``-m "not torch"`` does not
+import the files marked ``torch`` as a whole (tests/train_extra.py)."""
 
 from __future__ import annotations
 
-import contextlib
 import importlib.util
-import io
 import os
 import tempfile
-import threading
-from collections.abc import AsyncIterator
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -21,11 +15,10 @@ import pytest
 # Keep test runs off the user's cache: kernels cache here, as `adsm` would with this variable set (child
 # processes inherit it).
 os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "adsm-test-numba-cache"))
-from stand_in import MatcherRules
+from helpers import cones_folder
 from train_extra import MARKER, marked_as_a_whole
 
 from service import jit
-from training.data.evaluation_only import CONES_FOLDER as CONES  # ../shared/data/...; evaluation only
 
 jit.configure_cache()
 
@@ -55,118 +48,12 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
     return True if _deselects_the_marker(config) and marked_as_a_whole(collection_path) else None
 
 
-def in_ci() -> bool:
-    """True under CI (``CI=true``, as GitHub Actions, GitLab and .ci/run's callers set it)."""
-    return os.environ.get("CI", "").strip().lower() in ("true", "1", "yes")
-
-
-def require(available: bool, what: str) -> None:
-    """Skip the calling test when ``what`` (a prerequisite) is not ``available``; under CI, fail instead.
-
-    CI installs every prerequisite (.ci/run), so a missing one there means the set-up broke, and a skip
-    would let the checks that need it pass unseen. Every test with a prerequisite goes through here
-    (tests/test_prerequisites.py holds the suite to that).
-    """
-    if available:
-        return
-    if in_ci():
-        pytest.fail(f"missing prerequisite under CI=true: {what}", pytrace=False)
-    pytest.skip(f"missing prerequisite: {what}", allow_module_level=True)
-
-
-def require_module(name: str) -> ModuleType:
-    """``pytest.importorskip`` through :func:`require`: the module, or a skip (locally) or failure (CI)."""
-    import importlib
-
-    try:
-        return importlib.import_module(name)
-    except ImportError as error:
-        require(False, f"module {name} ({error})")
-        raise  # not reached: require skipped or failed
-
-
-def cones_folder() -> Path:
-    """The Cones pair's folder, or :func:`require`'s skip / CI failure when it is not beside the checkout."""
-    require((CONES / "left.png").is_file() and (CONES / "disp_left.png").is_file(),
-            f"the Cones evaluation pair at {CONES}")
-    return CONES
-
-
 @pytest.fixture
 def cones_dir() -> Path:
     """:func:`cones_folder` as a fixture (``pytest.mark.usefixtures("cones_dir")`` on tests that read it)."""
     return cones_folder()
 
 
-def unit_features(rng: np.random.Generator, channels: int, height: int, width: int) -> np.ndarray:
-    """float32 (C, H, W) features with unit L2 norm over C, like the towers' output."""
-    features = rng.standard_normal((channels, height, width)).astype(np.float32)
-    return features / np.linalg.norm(features, axis=0, keepdims=True)
-
-
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(1234)
-
-
-@contextlib.asynccontextmanager
-async def ready_client(app, *, timeout: float = 120) -> AsyncIterator:
-    """An httpx client of ``app`` in-process, inside its lifespan, once ``/readyz`` answers 200."""
-    import anyio
-    import httpx
-
-    async with app.router.lifespan_context(app):
-        transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://test", timeout=60) as client:
-            with anyio.fail_after(timeout):
-                while (await client.get("/readyz")).status_code != 200:
-                    await anyio.sleep(0.05)
-            yield client
-
-
-class InstantMatcher(MatcherRules):
-    """Stands in for the Matcher: answers at once (or once ``gate`` is set), or raises ``error``."""
-
-    def __init__(self, gate: threading.Event | None = None, error: Exception | None = None) -> None:
-        from service.features import default_model_dir, load_manifest
-
-        self.manifest = load_manifest(default_model_dir())
-        self.gate = gate
-        self.error = error
-        self.calls = 0
-
-    def warmup(self) -> None:
-        pass
-
-    def __call__(self, left: np.ndarray, right: np.ndarray, options):
-        from service.matcher import StereoResult
-
-        self.calls += 1
-        if self.gate is not None:
-            assert self.gate.wait(10), "test never opened the gate"
-        if self.error is not None:
-            raise self.error
-        shape = left.shape[:2]
-        return StereoResult(np.ones(shape, np.float32), np.zeros(shape, np.uint8), {"towers": 0.0})
-
-
-def tiny_png() -> bytes:
-    """An 8x12 black RGB PNG."""
-    from PIL import Image
-
-    buffer = io.BytesIO()
-    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(buffer, format="PNG")
-    return buffer.getvalue()
-
-
-TINY_PAIR = {"left": ("l.png", tiny_png(), "image/png"), "right": ("r.png", tiny_png(), "image/png")}
-
-
-def disparity_scope(body: bytes, content_type: str) -> dict:
-    """The ASGI scope of a raw ``POST /disparity`` of ``body``, for tests that drive the app by hand."""
-    return {
-        "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "POST", "scheme": "http",
-        "path": "/disparity", "raw_path": b"/disparity", "query_string": b"", "root_path": "",
-        "headers": [(b"content-type", content_type.encode()), (b"content-length", str(len(body)).encode())],
-        "client": ("127.0.0.1", 5000), "server": ("127.0.0.1", 80),
-    }

@@ -16,7 +16,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from conftest import ready_client, require_module
+from helpers import ready_client, require_module
 from PIL import Image
 
 from service.api import Settings, create_app

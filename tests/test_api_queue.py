@@ -15,7 +15,7 @@ import anyio
 import httpx
 import numpy as np
 import pytest
-from conftest import disparity_scope
+from helpers import disparity_scope
 from PIL import Image
 from stand_in import MatcherRules
 

@@ -17,7 +17,7 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
-from conftest import ready_client
+from helpers import ready_client
 from PIL import Image
 
 from service.api import Settings, create_app

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
-from conftest import cones_folder
+from helpers import cones_folder
 from PIL import Image
 
 from service.cli import main

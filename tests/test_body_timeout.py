@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator
 import anyio
 import httpx
 import pytest
-from conftest import TINY_PAIR, InstantMatcher, disparity_scope, ready_client
+from helpers import TINY_PAIR, InstantMatcher, disparity_scope, ready_client
 
 from service.api import Settings, create_app
 from service.api.middleware.body_timeout import BodyDeadline

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import require_module
+from helpers import require_module
 from test_calibration import KITTI, MIDDLEBURY, _rig, _storage
 
 from service.calibration import CalibrationError, StereoCalibration, read_calibration

@@ -20,7 +20,7 @@ import anyio.from_thread
 import httpx
 import numpy as np
 import pytest
-from conftest import InstantMatcher
+from helpers import InstantMatcher
 from PIL import Image
 
 from service.api import Settings, create_app

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import CONES, require
+from helpers import CONES, require
 from PIL import Image
 from test_matcher import slanted_plane_pair
 

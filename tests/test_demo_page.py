@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import require, require_module
+from helpers import require, require_module
 from PIL import Image
 
 from service.geometry import read_ply

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from conftest import InstantMatcher, ready_client, require, require_module
+from helpers import InstantMatcher, ready_client, require, require_module
 
 from service.api import Settings, create_app
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cones_folder
+from helpers import cones_folder
 
 from service.datasets import open_dataset
 from service.evaluation import count_errors

@@ -6,7 +6,7 @@ import io
 
 import numpy as np
 import pytest
-from conftest import require_module
+from helpers import require_module
 
 from service.api.routes import geometry as api_geometry
 from service.calibration import StereoCalibration

@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import TINY_PAIR, InstantMatcher, disparity_scope
+from helpers import TINY_PAIR, InstantMatcher, disparity_scope
 from PIL import Image
 
 from service.api import Settings, create_app

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import require
+from helpers import require
 
 ROOT = Path(__file__).resolve().parent.parent
 SERVICE_DIR = ROOT / "service"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from conftest import require_module
+from helpers import require_module
 
 from training.data.samples import patch_pairs, random_crop, random_patch_pairs, usable_pixels
 from training.data.synthetic import SyntheticConfig, generate

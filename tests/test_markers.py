@@ -42,7 +42,7 @@ def test_make_test_ends_with_the_serve_only_suite():
 
 
 def test_what_every_run_loads_needs_no_train_extra():
-    for module in ("conftest", "stand_in", "train_extra"):
+    for module in ("conftest", "helpers", "stand_in", "train_extra"):
         assert needs_at_import(module) is None, module
 
 

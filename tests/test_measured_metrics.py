@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import CONES as CONES_FOLDER
+from helpers import CONES as CONES_FOLDER
 
 from export.measure import CONES
 from service.datasets import open_dataset
@@ -49,7 +49,7 @@ FRESH_TOLERANCE = {"bad-N": 0.15, "epe": 0.03}   # percentage points; pixels
 MAX_INT8_BAD2_DELTA = 0.25
 MIN_INT8_AGREEMENT_1PX = 0.97
 
-# Skipped only off CI: with CI=true a missing evaluation pair fails the tests instead (conftest.require).
+# Skipped only off CI: with CI=true a missing evaluation pair fails the tests instead (helpers.require).
 needs_cones = pytest.mark.usefixtures("cones_dir")
 
 

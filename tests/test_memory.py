@@ -11,7 +11,7 @@ import textwrap
 
 import numpy as np
 import pytest
-from conftest import InstantMatcher, ready_client
+from helpers import InstantMatcher, ready_client
 from PIL import Image
 
 from service.api import Settings, create_app

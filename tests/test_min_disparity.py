@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import unit_features
+from helpers import unit_features
 from test_matcher import slanted_plane_pair
 
 from service.cli import main

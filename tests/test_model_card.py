@@ -11,7 +11,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from conftest import InstantMatcher, ready_client
+from helpers import InstantMatcher, ready_client
 
 from export import card as card_command
 from service.api import Settings, create_app

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cones_folder
+from helpers import cones_folder
 from PIL import Image
 
 from service.cli import main

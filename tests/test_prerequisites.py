@@ -1,4 +1,4 @@
-"""conftest.require: a missing prerequisite skips a test locally and fails it under CI=true; every test
+"""helpers.require: a missing prerequisite skips a test locally and fails it under CI=true; every test
 with a prerequisite goes through it (no bare pytest.skip / skipif / importorskip elsewhere)."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import conftest
+import helpers
 import pytest
-from conftest import cones_folder, require, require_module
+from helpers import cones_folder, require, require_module
 
 TESTS = Path(__file__).resolve().parent
 SKIPS = {"skip", "skipif", "importorskip"}
@@ -45,13 +45,13 @@ def test_a_missing_prerequisite_skips_locally_and_fails_in_ci(where):
 
 
 def test_the_cones_pair_goes_through_require(where, monkeypatch, tmp_path):
-    monkeypatch.setattr(conftest, "CONES", tmp_path / "absent")
+    monkeypatch.setattr(helpers, "CONES", tmp_path / "absent")
     assert _outcome(cones_folder) == {"local": "skipped", "ci": "failed"}[where]
     folder = tmp_path / "cones"
     folder.mkdir()
     for name in ("left.png", "disp_left.png"):
         (folder / name).write_bytes(b"")
-    monkeypatch.setattr(conftest, "CONES", folder)
+    monkeypatch.setattr(helpers, "CONES", folder)
     assert cones_folder() == folder
 
 
@@ -59,7 +59,7 @@ def test_ci_run_reports_a_failure_not_a_skip(tmp_path):
     """Through pytest itself: the same missing prerequisite is a skip, and under CI=true an exit code of 1."""
     (tmp_path / "test_needs.py").write_text(
         f"import sys; sys.path.insert(0, {str(TESTS)!r})\n"
-        "from conftest import require\n\n"
+        "from helpers import require\n\n"
         "def test_needs():\n    require(False, 'a thing that is not here')\n")
     runs = {}
     for ci in ("", "true"):
@@ -73,12 +73,12 @@ def test_ci_run_reports_a_failure_not_a_skip(tmp_path):
 
 
 def test_no_test_skips_on_its_own():
-    """Every skip goes through conftest.require, so that CI=true turns it into a failure."""
+    """Every skip goes through helpers.require, so that CI=true turns it into a failure."""
     offenders = []
     for path in sorted(TESTS.glob("*.py")):
-        if path.name in ("conftest.py", Path(__file__).name):  # the helper, and this test of it
+        if path.name in ("helpers.py", Path(__file__).name):  # the helper, and this test of it
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Attribute) and node.attr in SKIPS:
                 offenders.append(f"{path.name}:{node.lineno} .{node.attr}")
-    assert offenders == [], "use conftest.require / require_module / cones_folder instead"
+    assert offenders == [], "use helpers.require / require_module / cones_folder instead"

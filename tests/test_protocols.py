@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import InstantMatcher, require_module
+from helpers import InstantMatcher, require_module
 from stand_in import MatcherRules, protocol_problems
 
 from service.features import FeatureTowers, Towers

@@ -18,7 +18,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from conftest import cones_folder
+from helpers import cones_folder
 
 from service.io import read_disparity
 

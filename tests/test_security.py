@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 import yaml
-from conftest import TINY_PAIR, InstantMatcher, ready_client, require_module, tiny_png
+from helpers import TINY_PAIR, InstantMatcher, ready_client, require_module, tiny_png
 
 from service.api import Settings, create_app
 from service.io import read_disparity

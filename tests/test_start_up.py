@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import InstantMatcher
+from helpers import InstantMatcher
 
 from service.api import Settings, create_app
 from service.cli import main

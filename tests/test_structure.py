@@ -213,3 +213,20 @@ def test_the_http_service_layers_point_one_way():
     offences += [f"{name} imports {target}" for name in sorted(set(graph) - routes - {"service.api.app"})
                  for target in graph[name] & routes]
     assert not offences, "\n".join(offences)
+
+
+def test_tests_share_helpers_and_conftest_holds_fixtures_only():
+    # conftest.py is pytest's to load; a test importing it ran it a second time under another name. What
+    # tests share is in tests/helpers.py; conftest keeps fixtures and hooks (and private helpers of those).
+    tests = ROOT / "tests"
+    importers = [f"{path.name}:{node.lineno}" for path in sorted(tests.rglob("*.py"))
+                 for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                 if isinstance(node, ast.Import | ast.ImportFrom)
+                 and "conftest" in ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                                    else [node.module])]
+    assert importers == [], "import from helpers instead"
+    conftest = ast.parse((tests / "conftest.py").read_text(encoding="utf-8"))
+    public = [node.name for node in conftest.body if isinstance(node, ast.FunctionDef | ast.ClassDef)
+              and not node.name.startswith(("_", "pytest_"))
+              and not any("fixture" in ast.unparse(decorator) for decorator in node.decorator_list)]
+    assert public == [], "conftest.py: fixtures and hooks only"

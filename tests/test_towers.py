@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
-from conftest import cones_folder
+from helpers import cones_folder
 from onnx import TensorProto, helper
 from test_measured_metrics import FRESH_TOLERANCE
 

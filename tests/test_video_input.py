@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import require_module
+from helpers import require_module
 
 from service.cli import main
 from service.io.video import MISSING_EXTRA, StereoVideo
