@@ -121,3 +121,16 @@ def cost_volume(
     right = np.ascontiguousarray(right, dtype=np.float32)
     _cost_rows(left, right, np.float32(scale), int(min_disparity), out)
     return out
+
+
+def checked_winners(volume: np.ndarray, winners: np.ndarray) -> np.ndarray:
+    """``winners`` as C-contiguous int32 after checking them against an int16 ``(H, W, D)`` cost volume
+    (shape, dtype, cell range): what every kernel that reads a volume at its winners needs first."""
+    if volume.ndim != 3 or winners.shape != volume.shape[:2]:
+        raise ValueError(f"winners {winners.shape} do not match the cost volume {volume.shape}")
+    if volume.dtype != COST_DTYPE:
+        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
+    winners = np.ascontiguousarray(winners, dtype=np.int32)
+    if winners.size and (winners.min() < 0 or winners.max() >= volume.shape[2]):
+        raise ValueError(f"winners must lie in [0, {volume.shape[2] - 1}]")
+    return winners

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from service.cost import COST_DTYPE
+from service.cost import checked_winners
 from service.jit import njit
 
 
@@ -33,13 +33,7 @@ def _refine_rows(volume, winners, refined):  # type: ignore[no-untyped-def]
 
 def refine_subpixel(volume: np.ndarray, winners: np.ndarray) -> np.ndarray:
     """float32 HxW sub-pixel disparities from an int16 ``(H, W, D)`` cost volume and its int HxW winners."""
-    if volume.ndim != 3 or winners.shape != volume.shape[:2]:
-        raise ValueError(f"winners {winners.shape} do not match the cost volume {volume.shape}")
-    if volume.dtype != COST_DTYPE:
-        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
-    winners = np.ascontiguousarray(winners, dtype=np.int32)
-    if winners.size and (winners.min() < 0 or winners.max() >= volume.shape[2]):
-        raise ValueError(f"winners must lie in [0, {volume.shape[2] - 1}]")
+    winners = checked_winners(volume, winners)
     refined = np.empty(winners.shape, np.float32)
     _refine_rows(np.ascontiguousarray(volume), winners, refined)
     return refined

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from service.cost import COST_DTYPE
+from service.cost import checked_winners
 from service.jit import njit
 from service.validation.codes import VALID
 
@@ -69,13 +69,7 @@ def _confidence_rows(volume, winners, lowest, confidence):  # type: ignore[no-un
 def cost_confidence(volume: np.ndarray, winners: np.ndarray, *, lowest: float) -> np.ndarray:
     """float32 HxW peak ratio ``(C2 - C1) / (C2 - lowest)`` of an int16 ``(H, W, D)`` volume and its int
     HxW winners (cell indices); ``lowest`` is the smallest cost the volume can hold."""
-    if volume.ndim != 3 or winners.shape != volume.shape[:2]:
-        raise ValueError(f"winners {winners.shape} do not match the cost volume {volume.shape}")
-    if volume.dtype != COST_DTYPE:
-        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
-    winners = np.ascontiguousarray(winners, dtype=np.int32)
-    if winners.size and (winners.min() < 0 or winners.max() >= volume.shape[2]):
-        raise ValueError(f"winners must lie in [0, {volume.shape[2] - 1}]")
+    winners = checked_winners(volume, winners)
     confidence = np.empty(winners.shape, np.float32)
     _confidence_rows(np.ascontiguousarray(volume), winners, np.int32(np.floor(lowest)), confidence)
     return confidence
