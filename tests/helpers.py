@@ -9,7 +9,7 @@ import contextlib
 import io
 import os
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -102,6 +102,39 @@ class InstantMatcher(MatcherRules):
             raise self.error
         shape = left.shape[:2]
         return StereoResult(np.ones(shape, np.float32), np.zeros(shape, np.uint8), {"towers": 0.0})
+
+
+@contextlib.contextmanager
+def served_in_thread(app, *, timeout: float) -> Iterator[str]:
+    """``app`` under a real uvicorn on a free 127.0.0.1 port in a daemon thread, yielding its base URL once
+    ``/readyz`` answers (for browser tests, which need a real socket)."""
+    import socket
+    import time
+    import urllib.request
+
+    import uvicorn
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(f"{url}/readyz", timeout=2):
+                break
+        except OSError:
+            if time.monotonic() > deadline or not thread.is_alive():
+                raise
+            time.sleep(0.1)
+    try:
+        yield url
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)
 
 
 def tiny_png() -> bytes:

@@ -13,15 +13,11 @@ import base64
 import io
 import os
 import shutil
-import socket
-import threading
-import time
-import urllib.request
 from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import require, require_module
+from helpers import require, require_module, served_in_thread
 from PIL import Image
 
 from service.geometry import read_ply
@@ -41,31 +37,10 @@ SAMPLE_SIZE = (187, 225)  # height, width of service/api/static/sample-*.png
 
 @pytest.fixture(scope="module")
 def server_url():
-    import uvicorn
-
     from service.api import Settings, create_app
 
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    app = create_app(Settings(queue_size=2))
-    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning")
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
-    while True:
-        try:
-            with urllib.request.urlopen(f"{url}/readyz", timeout=2):
-                break
-        except OSError:
-            if time.monotonic() > deadline or not thread.is_alive():
-                raise
-            time.sleep(0.1)
-    yield url
-    server.should_exit = True
-    thread.join(timeout=30)
+    with served_in_thread(create_app(Settings(queue_size=2)), timeout=120) as url:
+        yield url
 
 
 @pytest.fixture(scope="module")

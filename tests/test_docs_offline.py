@@ -14,16 +14,12 @@ import html.parser
 import os
 import re
 import shutil
-import socket
-import threading
-import time
 import tomllib
-import urllib.request
 from pathlib import Path
 
 import httpx
 import pytest
-from helpers import InstantMatcher, ready_client, require, require_module
+from helpers import InstantMatcher, ready_client, require, require_module, served_in_thread
 
 from service.api import Settings, create_app
 
@@ -135,28 +131,8 @@ CHROMIUM = "/usr/bin/chromium"
 
 @pytest.fixture(scope="module")
 def server_url():
-    import uvicorn
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
-    app = create_app(Settings(), matcher=InstantMatcher())
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
-    while True:
-        try:
-            with urllib.request.urlopen(f"{url}/readyz", timeout=2):
-                break
-        except OSError:
-            if time.monotonic() > deadline or not thread.is_alive():
-                raise
-            time.sleep(0.1)
-    yield url
-    server.should_exit = True
-    thread.join(timeout=30)
+    with served_in_thread(create_app(Settings(), matcher=InstantMatcher()), timeout=60) as url:
+        yield url
 
 
 def test_docs_render_in_chromium_without_outside_requests(server_url: str) -> None:
