@@ -71,6 +71,13 @@ def _integer(name: str, value: Any) -> int:
     return int(value)
 
 
+def recommended_size(recommended: int, width: int, *, min_disparity: int = 0) -> int:
+    """A dataset's recommended range size (KITTI 192, Cones 64, ...) fitted to an image ``width`` wide:
+    a default, not the caller's choice, so it shrinks instead of being refused. ``adsm eval`` and
+    ``adsm predict --data`` both search it when no range is given."""
+    return min(recommended, width - min_disparity)
+
+
 def search_range(width: int, *, min_disparity: int = 0, max_disparity: int | None = None,
                  default_max: int) -> SearchRange:
     """The range a call on an image ``width`` pixels wide searches; :class:`DisparityRangeError` if none.

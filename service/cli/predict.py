@@ -63,7 +63,7 @@ from service.features import default_model_dir, load_manifest
 from service.io import FORMATS, format_for_path, image_size, read_pair, write_disparity
 from service.io.confidence import encode_confidence
 from service.io.video import StereoVideo
-from service.limits import ENVIRONMENT, RequestLimits, check_request
+from service.limits import ENVIRONMENT, RequestLimits, check_request, recommended_size
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
 
 if TYPE_CHECKING:  # imported when a pair runs: `adsm --help` must not pay for Numba or OpenCV
@@ -658,7 +658,8 @@ def _search_options(options: MatchOptions, recommended: int | None, width: int) 
     fitted to the image as adsm eval fits it (service/evaluation/evaluate.py): both match the same range."""
     if options.max_disparity is not None or recommended is None:
         return options
-    return dataclasses.replace(options, max_disparity=min(recommended, width - options.min_disparity))
+    return dataclasses.replace(options, max_disparity=recommended_size(recommended, width,
+                                                                       min_disparity=options.min_disparity))
 
 
 def _check_sizes(pair: _Pair) -> tuple[int, int]:

@@ -15,6 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from service.datasets import StereoSample
+from service.limits import recommended_size
 from service.matcher import MatchOptions, StereoResult
 
 from .breakdown import Breakdown
@@ -47,8 +48,8 @@ def evaluate(matcher: StereoFunction, dataset: Sequence[StereoSample], *, max_di
         sample = dataset[index]
         search = max_disparity
         if search is None and sample.max_disparity is not None:
-            # The dataset's recommendation is not the caller's choice: fitted to the image, as a default.
-            search = min(sample.max_disparity, sample.left.shape[1] - options.min_disparity)
+            search = recommended_size(sample.max_disparity, sample.left.shape[1],
+                                      min_disparity=options.min_disparity)
         search = search or options.max_disparity
         started = time.perf_counter()
         result = matcher(sample.left, sample.right, dataclasses.replace(options, max_disparity=search))
