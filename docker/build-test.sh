@@ -9,7 +9,7 @@
 # Steps: stand-in base -> `podman build --isolation=chroot` (pip reaches the package index through the
 # host's network and CA certificates) -> `buildah run --isolation chroot` of the image's entry point and
 # command -> GET /readyz -> a real POST /disparity of the Cones pair -> checks on the answer.
-# Not part of pytest (minutes); tests/test_serve_venv.py runs the same command from a fresh venv.
+# Not part of pytest (minutes); tests/e2e/test_serve_venv.py runs the same command from a fresh venv.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -15,10 +15,9 @@ import pytest
 # Keep test runs off the user's cache: kernels cache here, as `adsm` would with this variable set (child
 # processes inherit it).
 os.environ.setdefault("ADSM_NUMBA_CACHE_DIR", os.path.join(tempfile.gettempdir(), "adsm-test-numba-cache"))
-from helpers import cones_folder
-from train_extra import MARKER, marked_as_a_whole
-
 from service import jit
+from tests.helpers import cones_folder
+from tests.train_extra import MARKER, marked_as_a_whole
 
 jit.configure_cache()
 

@@ -9,7 +9,8 @@ import importlib
 import re
 
 import pytest
-from train_extra import PACKAGES, ROOT, needs_at_import
+
+from tests.train_extra import PACKAGES, ROOT, needs_at_import
 
 SKIP = re.compile(r"#\s*doctest:.*\+SKIP")
 SKIP_WITH_REASON = re.compile(r"#\s*\S.*#\s*doctest:.*\+SKIP")  # '# why  # doctest: +SKIP'

@@ -12,14 +12,17 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from train_extra import ROOT, TESTS, TRAIN_ONLY, needs_at_import, unmarked_needs
+
+from tests.train_extra import ROOT, TESTS, TRAIN_ONLY, needs_at_import, unmarked_needs
 
 # Loaded with -p before conftest: `import torch` fails and find_spec finds nothing, as without torch.
 HIDE_TORCH = 'import sys\nsys.modules["torch"] = None\n'
 
 
 def test_every_test_that_needs_the_train_extra_is_marked():
-    problems = [problem for path in sorted(TESTS.rglob("test_*.py")) for problem in unmarked_needs(path)]
+    paths = sorted(TESTS.rglob("test_*.py"))
+    assert TESTS / "service" / "api" / "middleware" in {path.parent for path in paths}  # every folder, nested
+    problems = [problem for path in paths for problem in unmarked_needs(path)]
     assert problems == [], "mark with pytest.mark.torch (pyproject.toml [tool.pytest.ini_options].markers)"
 
 
@@ -42,7 +45,7 @@ def test_make_test_ends_with_the_serve_only_suite():
 
 
 def test_what_every_run_loads_needs_no_train_extra():
-    for module in ("conftest", "helpers", "stand_in", "train_extra"):
+    for module in ("tests.conftest", "tests.helpers", "tests.stand_in", "tests.train_extra"):
         assert needs_at_import(module) is None, module
 
 
@@ -109,10 +112,10 @@ def test_without_torch_not_torch_leaves_marked_files_unimported(tmp_path: Path):
 
     def pytest_run(*args: str) -> subprocess.CompletedProcess:
         return subprocess.run(
-            [sys.executable, "-m", "pytest", "-p", "hide_torch", "-p", "conftest", "-p", "no:cacheprovider",
-             "-q", "--rootdir", str(cases), *args, str(cases)],
+            [sys.executable, "-m", "pytest", "-p", "hide_torch", "-p", "tests.conftest",
+             "-p", "no:cacheprovider", "-q", "--rootdir", str(cases), *args, str(cases)],
             capture_output=True, text=True, timeout=300, cwd=cases,
-            env={"PATH": "/usr/bin:/bin", "PYTHONPATH": f"{tmp_path}:{TESTS}:{ROOT}"})
+            env={"PATH": "/usr/bin:/bin", "PYTHONPATH": f"{tmp_path}:{ROOT}"})
 
     serve_only = pytest_run("-m", "not torch")
     assert serve_only.returncode == 0 and "1 passed, 1 deselected" in serve_only.stdout, serve_only.stdout

@@ -8,11 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import helpers
 import pytest
-from helpers import cones_folder, require, require_module
 
-TESTS = Path(__file__).resolve().parent
+from tests import helpers
+from tests.helpers import ROOT, TESTS, cones_folder, require, require_module
+
 SKIPS = {"skip", "skipif", "importorskip"}
 
 
@@ -58,8 +58,8 @@ def test_the_cones_pair_goes_through_require(where, monkeypatch, tmp_path):
 def test_ci_run_reports_a_failure_not_a_skip(tmp_path):
     """Through pytest itself: the same missing prerequisite is a skip, and under CI=true an exit code of 1."""
     (tmp_path / "test_needs.py").write_text(
-        f"import sys; sys.path.insert(0, {str(TESTS)!r})\n"
-        "from helpers import require\n\n"
+        f"import sys; sys.path.insert(0, {str(ROOT)!r})\n"
+        "from tests.helpers import require\n\n"
         "def test_needs():\n    require(False, 'a thing that is not here')\n")
     runs = {}
     for ci in ("", "true"):
@@ -75,10 +75,10 @@ def test_ci_run_reports_a_failure_not_a_skip(tmp_path):
 def test_no_test_skips_on_its_own():
     """Every skip goes through helpers.require, so that CI=true turns it into a failure."""
     offenders = []
-    for path in sorted(TESTS.glob("*.py")):
-        if path.name in ("helpers.py", Path(__file__).name):  # the helper, and this test of it
+    for path in sorted(TESTS.rglob("*.py")):
+        if path in (TESTS / "helpers.py", Path(__file__).resolve()):  # the helper, and this test of it
             continue
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Attribute) and node.attr in SKIPS:
-                offenders.append(f"{path.name}:{node.lineno} .{node.attr}")
+                offenders.append(f"{path.relative_to(TESTS)}:{node.lineno} .{node.attr}")
     assert offenders == [], "use helpers.require / require_module / cones_folder instead"

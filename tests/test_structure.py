@@ -191,7 +191,7 @@ def test_the_runtime_ships_its_types_and_make_test_checks_them():
 
 def test_the_cli_reports_a_bad_model_folder_in_one_place():
     # predict, eval and serve each printed their own copy; `adsm`'s main() now words it for all of them
-    # (tests/test_predict_cli.py, test_eval.py and test_faults.py hold each command to it).
+    # (tests/service/cli/test_predict_cli.py, test_eval.py and test_faults.py hold each command to it).
     wording = [path.name for path in sorted((ROOT / "service" / "cli").glob("*.py"))
                if "error: bad model folder" in path.read_text(encoding="utf-8")]
     assert wording == ["__init__.py"]
@@ -219,14 +219,39 @@ def test_tests_share_helpers_and_conftest_holds_fixtures_only():
     # conftest.py is pytest's to load; a test importing it ran it a second time under another name. What
     # tests share is in tests/helpers.py; conftest keeps fixtures and hooks (and private helpers of those).
     tests = ROOT / "tests"
-    importers = [f"{path.name}:{node.lineno}" for path in sorted(tests.rglob("*.py"))
+    importers = [f"{path.relative_to(tests)}:{node.lineno}" for path in sorted(tests.rglob("*.py"))
                  for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
                  if isinstance(node, ast.Import | ast.ImportFrom)
-                 and "conftest" in ([alias.name for alias in node.names] if isinstance(node, ast.Import)
-                                    else [node.module])]
+                 and any(str(name).rpartition(".")[2] == "conftest"  # conftest, tests.conftest
+                         for name in ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                                      else [node.module, *(alias.name for alias in node.names)]))]
     assert importers == [], "import from helpers instead"
     conftest = ast.parse((tests / "conftest.py").read_text(encoding="utf-8"))
     public = [node.name for node in conftest.body if isinstance(node, ast.FunctionDef | ast.ClassDef)
               and not node.name.startswith(("_", "pytest_"))
               and not any("fixture" in ast.unparse(decorator) for decorator in node.decorator_list)]
     assert public == [], "conftest.py: fixtures and hooks only"
+
+
+# The suite's own rules (imports, markers, prerequisites, doctests): the only tests at tests/ root.
+ROOT_TESTS = {"test_structure.py", "test_markers.py", "test_prerequisites.py", "test_doctests.py"}
+# Folders that mirror no package: the product from outside (a real server, a browser, a fresh venv, the
+# container files) and documents whose claims are held to the code.
+OUTSIDE = {"e2e", "docs"}
+
+
+def test_tests_mirror_the_packages():
+    # tests/service/cost/ holds the tests of service/cost/, tests/training/ those of training/, and so on
+    # (docs/architecture.md, "Tests"): a renamed or removed package leaves no folder of tests behind.
+    # Every folder is a package (__init__.py): two folders may hold test files of the same name, and
+    # tests/service/ is only ever tests.service, never found as the runtime's `service`.
+    tests = ROOT / "tests"
+    folders = sorted(path for path in tests.rglob("*") if path.is_dir() and "__pycache__" not in path.parts)
+    assert tests / "service" / "api" / "middleware" in folders
+    assert [str(folder.relative_to(ROOT)) for folder in [tests, *folders]
+            if not (folder / "__init__.py").is_file()] == []
+    stray = [str(folder.relative_to(tests)) for folder in folders if folder.relative_to(tests).parts[0]
+             not in OUTSIDE and not (ROOT / folder.relative_to(tests)).is_dir()]
+    assert stray == [], "test folders that mirror no package folder"
+    at_root = {path.name for path in tests.glob("test_*.py")}
+    assert at_root <= ROOT_TESTS, "a package's test goes in its package's folder"

@@ -5,8 +5,8 @@ that need it carry ``pytest.mark.torch`` and ``pytest -m "not torch"`` leaves th
 train extra at import is known from the code: an ``import`` of a package only the train or bench extras
 bring (:data:`TRAIN_ONLY`), directly or through the project's own modules. conftest.py keeps a file
 marked as a whole out of such a run (:func:`marked_as_a_whole`); tests/test_markers.py holds every test
-file to the rule (:func:`unmarked_needs`). What only fails when it runs (the synthetic generator's
-scikit-image photographs) is the serve-only run's to find.
+file, in every folder, to the rule (:func:`unmarked_needs`). What only fails when it runs (the synthetic
+generator's scikit-image photographs) is the serve-only run's to find.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import functools
 from collections.abc import Iterator
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-TESTS = ROOT / "tests"
+from tests.helpers import ROOT, TESTS
+
 PACKAGES = ("service", "training", "export", "bench")
 MARKER = "torch"
 LOADERS = ("require_module", "importlib.import_module")  # calls that import the module they name
@@ -83,13 +83,14 @@ def _module_level(tree: ast.Module) -> Iterator[ast.AST]:
 
 @functools.cache
 def _source(module: str) -> Path | None:
-    """The file of a project module (a package's ``__init__.py``) or of a test-folder module."""
+    """The file of a project module (a package's ``__init__.py``), the test suite's (``tests.helpers``)
+    included."""
     parts = module.split(".")
-    bases = [ROOT] if parts[0] in PACKAGES else [TESTS] if len(parts) == 1 else []
-    for base in bases:
-        for path in (base.joinpath(*parts).with_suffix(".py"), base.joinpath(*parts, "__init__.py")):
-            if path.is_file():
-                return path
+    if parts[0] not in (*PACKAGES, TESTS.name):
+        return None
+    for path in (ROOT.joinpath(*parts).with_suffix(".py"), ROOT.joinpath(*parts, "__init__.py")):
+        if path.is_file():
+            return path
     return None
 
 
@@ -118,7 +119,7 @@ def _edges(module: str) -> frozenset[str]:
 
 def needs_at_import(name: str) -> str | None:
     """How importing the dotted ``name`` loads a train-only package ("torch through training.networks"),
-    or None. ``name``: third-party, a module of ours, or a module of the test folder."""
+    or None. ``name``: third-party, a module of ours, or one of the test suite (``tests.helpers``)."""
     start = _loaded(name)
     seen, pending = set(start), [(module, module) for module in start]
     while pending:
@@ -155,8 +156,11 @@ def unmarked_needs(path: Path) -> list[str]:
     tree = ast.parse(path.read_text(encoding="utf-8"))
     if whole_mark(tree):
         return []
-    problems = [f"{path.name}:{node.lineno} imports {found} at module level: mark the file"
-                for node in _module_level(tree) if (found := _first_need(node, path.stem))]
+    inside = path.resolve().is_relative_to(ROOT)
+    shown = path.resolve().relative_to(ROOT) if inside else path.name
+    module = ".".join(shown.with_suffix("").parts) if inside else path.stem  # relative imports start here
+    problems = [f"{shown}:{node.lineno} imports {found} at module level: mark the file"
+                for node in _module_level(tree) if (found := _first_need(node, module))]
     units = list(_units(tree))
     tests = [(unit, marked) for unit, marked in units if unit.name.startswith("test")]
     for unit, marked in units:
@@ -165,6 +169,6 @@ def unmarked_needs(path: Path) -> list[str]:
                      if unit.name in {arg.arg for arg in test.args.args}
                      or any(isinstance(node, ast.Name) and node.id == unit.name for node in ast.walk(test))]
             marked = bool(users) and all(users)
-        problems += [f"{path.name}:{node.lineno} {unit.name} loads {found}: mark it"
-                     for node in ast.walk(unit) if not marked and (found := _first_need(node, path.stem))]
+        problems += [f"{shown}:{node.lineno} {unit.name} loads {found}: mark it"
+                     for node in ast.walk(unit) if not marked and (found := _first_need(node, module))]
     return problems

@@ -5,7 +5,7 @@ what that leaves out, its figures on that folder's own ONNX files (``metrics``, 
 ``python -m export.measure``), its speed, licence and how it was made. Everything comes from
 ``manifest.json``; :func:`write_manifest` rewrites the card with every manifest it writes, ``python -m
 export.card`` regenerates cards by hand, ``GET /v1/model/card`` serves the card of the served manifest,
-and tests/test_model_card.py regenerates each shipped card and compares it with the file.
+and tests/service/features/test_model_card.py regenerates each shipped card and compares it with the file.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 CARD_NAME = "README.md"
-# The project's licence (pyproject.toml; tests/test_model_card.py holds the two together). The shipped
+# The project's licence (pyproject.toml; tests/service/features/test_model_card.py holds the two together). The shipped
 # towers are trained and exported by the project from data its own code generates.
 PROJECT_LICENCE = "Apache-2.0"
 # What the data set names of export.measure stand for (others are shown with their SPEC only).

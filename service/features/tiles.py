@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 # Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
-# every shipped model (tests/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
+# every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
 # derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
 # they need far more than fp32 ones: adsm-fast-int8 977, adsm-paper-int8 1239, adsm-fast 166,
 # adsm-paper 574, ncc-baseline 448 bytes measured per padded pixel.

@@ -4,7 +4,7 @@
 "use strict";
 
 // R. Du's degree-5 polynomial fit of Turbo (Copyright 2019 Google LLC, Apache-2.0): coefficients of
-// x^0 .. x^5 for red, green and blue, the same as service/io/colormap.py's (tests/test_demo_page.py
+// x^0 .. x^5 for red, green and blue, the same as service/io/colormap.py's (tests/e2e/test_demo_page.py
 // compares the two 256-entry tables), so the page and format=color paint a value alike.
 const TURBO_POLYNOMIAL = [
   [0.13572138, 4.6153926, -42.66032258, 132.13108234, -152.94239396, 59.28637943],

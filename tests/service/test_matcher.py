@@ -1,0 +1,147 @@
+"""Matcher: input validation, options, and end to end on a synthetic slanted plane with the baseline model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.features import ModelError
+from service.filtering import weighted_median
+from service.matcher import Matcher, MatchOptions, StereoResult, Validity
+from tests.helpers import slanted_plane_pair
+
+
+@pytest.fixture(scope="module")
+def matcher() -> Matcher:
+    return Matcher.from_folder(threads=2)
+
+
+@pytest.mark.slow
+def test_slanted_plane_bad1_below_5_percent(matcher: Matcher) -> None:
+    left, right, truth, visible = slanted_plane_pair()
+    result = matcher(left, right, MatchOptions(max_disparity=32))
+    assert isinstance(result, StereoResult)
+    assert result.disparity.shape == truth.shape and result.disparity.dtype == np.float32
+    assert result.validity.dtype == np.uint8
+    error = np.abs(result.disparity - truth)[visible]
+    bad1 = np.mean(~(error <= 1.0))  # NaN counts as bad
+    assert bad1 < 0.05, f"bad-1 {bad1:.2%}"
+    # Sub-pixel precision: integer disparities alone would leave a mean error of ~0.25 px.
+    assert np.nanmean(error) < 0.15
+    assert list(result.timings)[:4] == ["towers", "cost_volume", "sgm", "disparity"]
+    assert list(result.timings)[-1] == "total"
+    assert all(seconds >= 0 for seconds in result.timings.values())
+
+
+def test_switches_change_the_pipeline(matcher: Matcher) -> None:
+    left, right, _, _ = slanted_plane_pair(height=40, width=64)
+    options = {"max_disparity": 24, "weighted_median": False}
+    bare = MatchOptions(**options, sgm=False, subpixel=False, lr_check=False, border=False)
+    raw = matcher(left, right, bare)
+    assert np.all(raw.validity == Validity.VALID)
+    assert np.all(raw.disparity == np.round(raw.disparity))  # integers without sub-pixel
+    assert "subpixel" not in raw.timings and "lr_check" not in raw.timings
+
+    unfilled = matcher(left, right, MatchOptions(**options, fill=False, border=False))
+    invalid = unfilled.validity != Validity.VALID
+    assert invalid.any()  # at least the columns whose match lies left of the right image
+    assert set(np.unique(unfilled.validity[invalid])) <= {Validity.OCCLUDED, Validity.MISMATCH}
+    assert np.all(np.isnan(unfilled.disparity[invalid])) and not np.isnan(unfilled.disparity[~invalid]).any()
+
+    filled = matcher(left, right, MatchOptions(**options, border=False))
+    assert set(np.unique(filled.validity)) <= {
+        Validity.VALID, Validity.FILLED_OCCLUSION, Validity.FILLED_MISMATCH, Validity.NO_DATA
+    }
+    np.testing.assert_array_equal(filled.disparity[~invalid], unfilled.disparity[~invalid])
+    assert "fill" in filled.timings and "border" not in filled.timings
+
+    banded = matcher(left, right, MatchOptions(**options))      # the border band step is on by default
+    constant = matcher(left, right, MatchOptions(**options, adaptive_p2=False))
+    assert constant.timings.keys() == banded.timings.keys()
+    changed = banded.disparity != filled.disparity
+    assert "border" in banded.timings and changed.any()
+    assert np.all(banded.validity[changed] == Validity.FILLED_OCCLUSION)
+    columns = np.broadcast_to(np.arange(left.shape[1]), changed.shape)
+    assert np.all(columns[changed] < banded.disparity[changed])
+
+    default = matcher(left, right, MatchOptions(max_disparity=24))  # ... and so is the weighted median, last
+    assert list(default.timings)[-2:] == ["weighted_median", "total"]
+    assert "weighted_median" not in banded.timings
+    np.testing.assert_array_equal(default.disparity, weighted_median(banded.disparity, left))
+    np.testing.assert_array_equal(default.validity, banded.validity)
+
+
+def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:
+    left, right, _, _ = slanted_plane_pair(height=12, width=10)
+    assert matcher.manifest["disparity"]["default_max"] > 10
+    result = matcher(left, right)  # D = default_max, clipped to the 10 columns
+    assert np.nanmax(result.disparity) <= 9.5
+    tiny = np.zeros((1, 1, 3), np.uint8)
+    assert matcher(tiny, tiny).disparity.shape == (1, 1)
+
+
+@pytest.mark.parametrize(
+    ("left", "right", "message"),
+    [
+        (np.zeros((8, 8, 3), np.float32), np.zeros((8, 8, 3), np.uint8), "left image must be a uint8"),
+        (np.zeros((8, 8), np.uint16), np.zeros((8, 8), np.uint16), "scale 16-bit samples"),
+        (np.zeros((8, 8, 2), np.uint8), np.zeros((8, 8, 2), np.uint8), "shape"),
+        (np.zeros((8, 8, 4), np.uint8), np.zeros((8, 8, 4), np.uint8), "shape"),
+        (np.zeros((8, 8, 3), np.uint8), [[0]], "right image"),
+        (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8), "differ in size"),
+        (np.zeros((0, 8, 3), np.uint8), np.zeros((0, 8, 3), np.uint8), "empty"),
+    ],
+)
+def test_rejects_bad_images(matcher: Matcher, left, right, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        matcher(left, right)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"max_disparity": 0}, "max_disparity"),
+        ({"max_disparity": 2.5}, "max_disparity"),
+        ({"max_disparity": True}, "max_disparity"),
+        ({"p1": -1.0}, "p1"),
+        ({"p2": float("inf")}, "p2"),
+        ({"p2": "160"}, "p2"),
+        ({"p2": 4097.0}, "p2"),
+        ({"fill": "yes"}, "fill"),
+    ],
+)
+def test_rejects_bad_options(options: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        MatchOptions(**options)
+
+
+def test_rejects_options_of_another_type(matcher: Matcher) -> None:
+    image = np.zeros((4, 4, 3), np.uint8)
+    with pytest.raises(ValueError, match="MatchOptions"):
+        matcher(image, image, {"max_disparity": 4})
+
+
+def test_bad_model_folder_raises_model_error(tmp_path) -> None:
+    with pytest.raises(ModelError):
+        Matcher.from_folder(tmp_path)
+
+
+def test_rejects_bad_threads() -> None:
+    with pytest.raises(ValueError, match="threads"):
+        Matcher.from_folder(threads=0)
+
+
+def test_reused_volumes_give_the_same_results_as_fresh_ones(matcher: Matcher) -> None:
+    kept_matcher = Matcher(matcher.towers, threads=2)
+    fresh = Matcher(matcher.towers, threads=2, reuse_volumes=False)
+    assert fresh.workspace is None
+    # Growing, shrinking and growing again: every view of the kept buffers is written before it is read.
+    for height, width, disparities in [(24, 40, 8), (40, 64, 16), (16, 32, 4), (40, 64, 16)]:
+        left, right, _, _ = slanted_plane_pair(height=height, width=width, seed=height)
+        options = MatchOptions(max_disparity=disparities)
+        kept, new = kept_matcher(left, right, options), fresh(left, right, options)
+        np.testing.assert_array_equal(kept.disparity, new.disparity)
+        np.testing.assert_array_equal(kept.validity, new.validity)
+    assert kept_matcher.workspace.nbytes == 2 * 2 * 40 * 64 * 16  # two int16 volumes of the largest call
+    kept_matcher.workspace.release()
+    assert kept_matcher.workspace.nbytes == 0
