@@ -12,8 +12,8 @@ Where SciPy is installed (the train and dev extras, not ``serve``), numba's firs
 ``scipy.linalg`` to look for a BLAS: 0.4-1 s more here, paid by any first kernel call in such a process.
 
 The argument types below are those the public wrappers pass (C-contiguous arrays of these dtypes, Python
-ints, float32 scalars); ``tests/service/test_first_call.py`` runs the matcher after :func:`load_kernels` and fails
-if any runtime kernel gained a specialisation, so a kernel added to the pipeline must be listed here.
+ints, float32 scalars); ``tests/service/test_first_call.py`` runs the matcher after :func:`load_kernels` and
+fails if any runtime kernel gained a specialisation, so a kernel added to the pipeline must be listed here.
 """
 
 from __future__ import annotations

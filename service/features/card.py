@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any
 
 CARD_NAME = "README.md"
-# The project's licence (pyproject.toml; tests/service/features/test_model_card.py holds the two together). The shipped
-# towers are trained and exported by the project from data its own code generates.
+# The project's licence (pyproject.toml; tests/service/features/test_model_card.py holds the two together).
+# The shipped towers are trained and exported by the project from data its own code generates.
 PROJECT_LICENCE = "Apache-2.0"
 # What the data set names of export.measure stand for (others are shown with their SPEC only).
 DATASET_NOTES = {

@@ -38,8 +38,9 @@ from PIL import Image, ImageOps, UnidentifiedImageError
 _TO_RGB = {"RGB", "RGBA", "RGBa", "RGBX", "P", "PA", "CMYK", "YCbCr", "LAB", "HSV"}
 _TO_GREY = {"L", "LA", "La", "1"}
 _SIXTEEN_BIT = {"I;16", "I;16L", "I;16B", "I;16N", "I"}
-# Pillow plugins whose open() parses a header only (checked for each in tests/service/io/test_io.py): single-image
-# formats, and multi-frame ones whose frames are decoded lazily (TIFF pages, GIF frames; JPEG opens MPO).
+# Pillow plugins whose open() parses a header only (checked for each in tests/service/io/test_io.py):
+# single-image formats, and multi-frame ones whose frames are decoded lazily (TIFF pages, GIF frames; JPEG
+# opens MPO).
 ALLOWED_FORMATS = ("PNG", "JPEG", "PPM", "TIFF", "BMP", "WEBP", "GIF")
 _ALLOWED_NAMES = "PNG, JPEG, PPM/PGM, TIFF, BMP, WebP or GIF"
 _EXIF_ORIENTATION = 0x0112

@@ -88,7 +88,8 @@ async def model(request: Request) -> dict[str, Any]:
 )
 async def card(request: Request) -> Response:
     # From the manifest the service verified and serves, as /v1/model shows it (paths cut), so the card
-    # and /v1/model never disagree; the folder's README.md is the same text (tests/service/features/test_model_card.py).
+    # and /v1/model never disagree; the folder's README.md is the same text
+    # (tests/service/features/test_model_card.py).
     text = model_card(public_manifest(_service(request).manifest))
     return Response(text, media_type="text/markdown; charset=utf-8")
 

@@ -224,8 +224,8 @@ def test_many_pairs_one_process(capsys, pair, tmp_path):
 
 
 def test_twelve_bit_grey_png_keeps_its_levels(capsys, tmp_path):
-    # The CLI reads through the shared reader (service.io.read_pair, tested in tests/service/io/test_io.py); here the
-    # matched pair must be the one read_pair decodes, and a 16-bit colour PNG one line.
+    # The CLI reads through the shared reader (service.io.read_pair, tested in tests/service/io/test_io.py);
+    # here the matched pair must be the one read_pair decodes, and a 16-bit colour PNG one line.
     from service.io import read_pair
     from service.matcher import Matcher, MatchOptions
 
