@@ -192,7 +192,8 @@ def test_the_runtime_ships_its_types_and_make_test_checks_them():
 def test_the_cli_reports_a_bad_model_folder_in_one_place():
     # predict, eval and serve each printed their own copy; `adsm`'s main() now words it for all of them
     # (tests/service/cli/test_predict_cli.py, test_eval.py and test_faults.py hold each command to it).
-    wording = [path.name for path in sorted((ROOT / "service" / "cli").glob("*.py"))
+    cli = ROOT / "service" / "cli"
+    wording = [str(path.relative_to(cli)) for path in sorted(cli.rglob("*.py"))
                if "error: bad model folder" in path.read_text(encoding="utf-8")]
     assert wording == ["__init__.py"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import yaml
 
 from service.cli import build_parser
-from service.cli.predict import _pairs
+from service.cli.predict.sources import pairs as run_pairs
 from tests.helpers import ROOT
 
 JOB = ROOT / "docker" / "predict-job.yaml"
@@ -35,9 +35,9 @@ def test_every_index_runs_a_shard_and_the_shards_partition_the_pairs(tmp_path) -
     for index in range(count):
         argv = [arg.replace("$(SHARD_INDEX)", str(index)).replace("/data/rig", str(rig)) for arg in args]
         parsed = build_parser().parse_args(argv)
-        pairs, batch = _pairs(parsed)
+        pairs, batch = run_pairs(parsed)
         assert batch
         seen += [pair.name for pair in pairs]
-        again, _ = _pairs(build_parser().parse_args(argv))
+        again, _ = run_pairs(build_parser().parse_args(argv))
         assert [pair.name for pair in again] == [pair.name for pair in pairs]  # deterministic
     assert sorted(seen) == [f"{number:06d}" for number in range(11)]  # each pair once, none left out
