@@ -13,7 +13,8 @@ import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+from tests.helpers import ROOT
+
 PACKAGES = ("service", "training", "export")
 FORBIDDEN_IN_SERVICE = {"training", "export", "torch", "skimage"}
 
@@ -227,6 +228,15 @@ def test_tests_share_helpers_and_conftest_holds_fixtures_only():
                          for name in ([alias.name for alias in node.names] if isinstance(node, ast.Import)
                                       else [node.module, *(alias.name for alias in node.names)]))]
     assert importers == [], "import from helpers instead"
+    # Another test module is read only for the fixtures of its own package (test_calibration_upload reads
+    # test_calibration's files); what crosses folders is shared through helpers.
+    crossing = [f"{path.relative_to(tests)}:{node.lineno} imports {node.module}"
+                for path in sorted(tests.rglob("*.py"))
+                for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                if isinstance(node, ast.ImportFrom) and node.module
+                and node.module.rpartition(".")[2].startswith("test_")
+                and node.module.rpartition(".")[0] != ".".join(path.relative_to(ROOT).parent.parts)]
+    assert crossing == [], "move what tests of several folders share into tests/helpers.py"
     conftest = ast.parse((tests / "conftest.py").read_text(encoding="utf-8"))
     public = [node.name for node in conftest.body if isinstance(node, ast.FunctionDef | ast.ClassDef)
               and not node.name.startswith(("_", "pytest_"))
