@@ -1,0 +1,108 @@
+"""export.hybrid: a learned model's towers and an NCC window blended into one cost, no runtime change."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+
+from export.baseline import build_tower
+from export.hybrid import build_folder, combine_towers, main
+from service.features import load_manifest
+from service.features.manifest import MODELS_DIR
+from service.matcher import Matcher, MatchOptions
+
+LEARNED = MODELS_DIR / "adsm-fast-int8"
+
+
+def _features(model: onnx.ModelProto, image: np.ndarray) -> np.ndarray:
+    session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return session.run(None, {"image": image})[0]
+
+
+@pytest.fixture(scope="module")
+def image() -> np.ndarray:
+    return np.random.default_rng(3).random((1, 3, 24, 40), dtype=np.float32)
+
+
+@pytest.mark.parametrize("window, weight", [(3, 0.3), (5, 0.6)])
+def test_the_blend_is_the_weighted_sum_of_the_two_cosines(image: np.ndarray, window: int,
+                                                           weight: float) -> None:
+    learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(window, side="left")
+    hybrid = _features(combine_towers(learned, ncc, ncc_weight=weight), image)
+    learned_features, ncc_features = _features(learned, image), _features(ncc, image)
+    assert hybrid.shape == (1, learned_features.shape[1] + window * window, 24, 40)
+    np.testing.assert_allclose(np.linalg.norm(hybrid, axis=1), 1.0, atol=1e-5)
+    # The runtime's cost is the dot product of the two views' features: for two pixels of the same image
+    # it must be (1 - w) * learned cosine + w * NCC.
+    def cosine(features: np.ndarray) -> float:
+        return float(features[0, :, 5, 7] @ features[0, :, 11, 30])
+
+    expected = (1 - weight) * cosine(learned_features) + weight * cosine(ncc_features)
+    assert cosine(hybrid) == pytest.approx(expected, abs=1e-5)
+
+
+def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -> None:
+    image = image.copy()
+    image[..., :20] = 0.5 + 0.002 * image[..., :20]   # a flat left half beside the textured right one
+    learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left")
+    hybrid = _features(combine_towers(learned, ncc, ncc_weight=0.8, texture_energy=0.01), image)
+    learned_features, ncc_features = _features(learned, image), _features(ncc, image)
+    grey = image[0].transpose(1, 2, 0) @ np.float32([0.299, 0.587, 0.114])
+    padded = np.pad(grey, 1, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3)).reshape(*grey.shape, 9)
+    energy = ((windows - windows.mean(-1, keepdims=True)) ** 2).sum(-1)
+    share = 0.8 * energy / (energy + 0.01)
+    np.testing.assert_allclose(hybrid[0, :32], np.sqrt(1 - share) * learned_features[0], atol=1e-5)
+    np.testing.assert_allclose(hybrid[0, 32:], np.sqrt(share) * ncc_features[0], atol=1e-5)
+    # Unit norm up to the NCC tower's own regularisation of near-flat windows (export.baseline.NORM_EPS).
+    np.testing.assert_allclose(np.linalg.norm(hybrid, axis=1), 1.0, atol=1e-4)
+    assert share[:, 2:17].max() < 0.01 and share[:, 23:].min() > 0.6   # flat -> learned, textured -> NCC
+    with pytest.raises(ValueError, match="texture energy must be positive"):
+        combine_towers(learned, ncc, ncc_weight=0.8, texture_energy=0.0)
+
+
+@pytest.mark.parametrize("weight", [0.0, 1.0, -0.2, 1.5, math.nan])
+def test_a_weight_outside_the_open_interval_is_refused(weight: float) -> None:
+    with pytest.raises(ValueError, match="strictly between 0 and 1"):
+        combine_towers(onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left"), ncc_weight=weight)
+
+
+def test_the_folder_is_a_valid_model_that_matches(tmp_path: Path) -> None:
+    path = build_folder(tmp_path / "hybrid", learned=LEARNED, window=3, ncc_weight=0.25, command="test")
+    manifest, learned = load_manifest(path.parent), load_manifest(LEARNED)
+    assert manifest["channels"] == learned["channels"] + 9
+    assert manifest["config"] == f"{learned['config']}+ncc-3x3"
+    assert manifest["onnx"]["precision"] == learned["onnx"]["precision"]
+    assert manifest["training"] == learned["training"]  # the towers' provenance goes with them
+    assert (manifest["sgm"]["p1"], manifest["sgm"]["p2"]) == (learned["sgm"]["p1"], learned["sgm"]["p2"])
+    assert manifest["build"]["ncc_weight"] == 0.25 and manifest["metrics"] == {}
+    # A textured pair shifted by 6 px: the hybrid towers find the shift through the unchanged runtime.
+    texture = np.random.default_rng(0).integers(0, 256, (48, 96, 3), dtype=np.uint8)
+    left, right = texture[:, :-6], texture[:, 6:]
+    disparity = Matcher.from_folder(path.parent)(left, right, MatchOptions(max_disparity=16)).disparity
+    assert np.nanmedian(np.abs(disparity[8:-8, 24:-8] - 6)) < 0.5
+
+
+def test_the_command_writes_penalties_given_and_reports_errors(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "h"
+    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.4", "--out", str(out),
+                 "--p1", "20", "--p2", "300"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert (manifest["sgm"]["p1"], manifest["sgm"]["p2"]) == (20.0, 300.0)
+    assert manifest["build"]["command"].startswith("python -m export.hybrid --learned")
+    assert main(["--learned", str(LEARNED), "--ncc-weight", "1", "--out", str(tmp_path / "x")]) == 1
+    assert main(["--learned", str(tmp_path / "nothing"), "--ncc-weight", "0.3", "--out", str(out)]) == 1
+    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.3", "--out", str(out), "--window", "4"]) == 1
+    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.3", "--out", str(out), "--tune",
+                 "--p1", "3"]) == 1
+    errors = capsys.readouterr().err
+    assert "strictly between 0 and 1" in errors and "does not exist" in errors
+    assert "odd positive size" in errors and "give either --tune or --p1/--p2" in errors
+    assert "Traceback" not in errors
