@@ -65,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--label", choices=LABELS, default="paper",
                         help="paper: eq. (19) around the rounded truth; subpixel: the same label moved "
                              "to the fractional truth (dense mode; docs/training.md)")
+    parser.add_argument("--edge-weight", type=float, default=0.0, metavar="W",
+                        help="dense mode: pixels within 3 px of a depth edge weigh 1 + W in the loss "
+                             "(default 0: the paper's plain mean)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
@@ -126,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
+                         edge_weight=args.edge_weight,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

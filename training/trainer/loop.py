@@ -54,6 +54,7 @@ class TrainConfig:
     max_disparity: int = 96
     augmentation: str = DEFAULT_AUGMENTATION
     label: str = "paper"                # eq. (19) on the rounded truth; "subpixel": centred on the exact one
+    edge_weight: float = 0.0            # extra loss weight within 3 px of a depth edge (0: the paper's mean)
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES_SPEC             # evaluation only; "" skips it
@@ -115,7 +116,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         step = checkpoint.step
         wall_before = float(checkpoint.training["wall_time_s"]) if checkpoint.training else 0.0
         best = checkpoint.config.get("best")
-    objective = Objective(model, mode=config.mode, label=config.label)
+    objective = Objective(model, mode=config.mode, label=config.label, edge_weight=config.edge_weight)
     wrapped = DistributedDataParallel(objective) if world > 1 else objective
     history = out / "history.jsonl"
     if rank == 0:

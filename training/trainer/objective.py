@@ -9,12 +9,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from training.losses import LABELS, dense_candidates, matching_loss
+from training.losses import LABELS, dense_candidates, depth_edge_weights, matching_loss
 from training.networks import TowerPair, dense_features
 
 
 class Objective(nn.Module):
-    def __init__(self, model: TowerPair, *, mode: str, label: str = "paper") -> None:
+    def __init__(self, model: TowerPair, *, mode: str, label: str = "paper",
+                 edge_weight: float = 0.0) -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
@@ -22,7 +23,11 @@ class Objective(nn.Module):
             raise ValueError(f"label must be one of {LABELS}, got {label!r}")
         if label == "subpixel" and mode == "patch":
             raise ValueError("the sub-pixel label needs the fractional truth of dense crops (--mode dense)")
-        self.model, self.mode, self.label = model, mode, label
+        if edge_weight and mode == "patch":
+            raise ValueError("the depth-edge weight needs the dense ground truth of crops (--mode dense)")
+        if edge_weight < 0:
+            raise ValueError(f"the depth-edge weight must be >= 0, got {edge_weight}")
+        self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
                 ) -> tuple[torch.Tensor, int]:
@@ -43,4 +48,9 @@ class Objective(nn.Module):
             # so DDP's gradient all-reduce sees the same parameters on every process.
             return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
         shift = shift if self.label == "subpixel" else None
-        return matching_loss(logits, inside, shift=shift), int(pixels.shape[0])
+        if not self.edge_weight:
+            return matching_loss(logits, inside, shift=shift), int(pixels.shape[0])
+        # Pixels near depth edges count (1 + edge_weight) times: the weighted mean of eq. (18).
+        weights = depth_edge_weights(target, pixels, weight=self.edge_weight)
+        losses = matching_loss(logits, inside, shift=shift, reduction="none")
+        return (weights * losses).sum() / weights.sum(), int(pixels.shape[0])

@@ -1,0 +1,72 @@
+"""The depth-edge weighted loss (``--edge-weight``): which pixels count more, and by how much."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from training.losses import dense_candidates, depth_edge_weights, matching_loss
+from training.networks import build_tower_pair, dense_features
+from training.train import main as train_main
+from training.trainer.objective import Objective
+
+pytestmark = pytest.mark.torch
+
+
+def _all_pixels(batch: int, height: int, width: int) -> torch.Tensor:
+    b, y, x = torch.meshgrid(torch.arange(batch), torch.arange(height), torch.arange(width), indexing="ij")
+    return torch.stack([b.flatten(), y.flatten(), x.flatten()], dim=1)
+
+
+def test_pixels_within_the_radius_of_a_jump_weigh_more_and_the_rest_one() -> None:
+    disparity = torch.full((1, 9, 20), 5.0)
+    disparity[:, :, 10:] = 9.0                      # a 4 px jump between columns 9 and 10
+    weights = depth_edge_weights(disparity, _all_pixels(1, 9, 20), weight=3.0, radius=2).view(9, 20)
+    near = (weights == 4.0).nonzero()[:, 1].unique().tolist()
+    assert near == [7, 8, 9, 10, 11, 12]             # columns 9 and 10 carry the jump, dilated by 2
+    assert bool((weights[:, :7] == 1.0).all()) and bool((weights[:, 13:] == 1.0).all())
+
+
+def test_a_slanted_surface_is_not_an_edge_but_an_occlusion_border_is() -> None:
+    ramp = torch.arange(20, dtype=torch.float32).expand(1, 9, 20) * 1.5   # 1.5 px per column: no jump
+    assert bool((depth_edge_weights(ramp, _all_pixels(1, 9, 20), weight=5.0) == 1.0).all())
+    occluded = ramp.clone()
+    occluded[:, :, 12:14] = math.nan                 # unlabelled: the pixels beside it are edges
+    weights = depth_edge_weights(occluded, _all_pixels(1, 9, 20), weight=5.0, radius=1).view(9, 20)
+    assert set((weights == 6.0).nonzero()[:, 1].unique().tolist()) == {10, 11, 12, 13, 14, 15}
+    assert depth_edge_weights(occluded, _all_pixels(1, 9, 20), weight=0.0).eq(1.0).all()
+    with pytest.raises(ValueError, match=">= 0"):
+        depth_edge_weights(occluded, _all_pixels(1, 9, 20), weight=-1.0)
+
+
+def test_the_objective_is_the_weighted_mean_of_eq_18() -> None:
+    torch.manual_seed(0)
+    model = build_tower_pair("9-4conv", channels=8, shared=True)
+    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
+    disparity = torch.full((1, 24, 48), 3.0)
+    disparity[:, :, 30:] = 8.0
+    loss, count = Objective(model, mode="dense", edge_weight=2.0)(left, right, disparity)
+    plain, plain_count = Objective(model, mode="dense")(left, right, disparity)
+    loss, plain = loss.detach(), plain.detach()
+    # Recompute by hand from the same candidates.
+    with torch.no_grad():
+        logits, inside, pixels, _ = dense_candidates(dense_features(model.left, left),
+                                                     dense_features(model.right, right), disparity,
+                                                     temperature=model.log_temperature.exp())
+        losses = matching_loss(logits, inside, reduction="none")
+        weights = depth_edge_weights(disparity, pixels, weight=2.0)
+    assert count == plain_count == pixels.shape[0]
+    assert float(loss) == pytest.approx(float((weights * losses).sum() / weights.sum()), rel=1e-5)
+    assert float(plain) == pytest.approx(float(losses.mean()), rel=1e-5)
+    assert float(loss) != pytest.approx(float(plain), rel=1e-3)   # the edge pixels' losses differ
+    with pytest.raises(ValueError, match="dense ground truth"):
+        Objective(model, mode="patch", edge_weight=1.0)
+
+
+def test_the_trainer_takes_the_weight_and_refuses_a_negative_one(tmp_path, capsys) -> None:
+    assert train_main(["--config", "9-4conv", "--channels", "4", "--shared", "--iterations", "1",
+                       "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--val-every", "1",
+                       "--val-pairs", "1", "--cones", "", "--edge-weight", "-1", "--out", str(tmp_path)]) == 1
+    assert "depth-edge weight must be >= 0" in capsys.readouterr().err
