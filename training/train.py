@@ -68,6 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--edge-weight", type=float, default=0.0, metavar="W",
                         help="dense mode: pixels within 3 px of a depth edge weigh 1 + W in the loss "
                              "(default 0: the paper's plain mean)")
+    parser.add_argument("--rectification-error", action="store_true",
+                        help="synthetic data: misalign each right view vertically by up to ~1 px (shift, "
+                             "rotation, scale: training.data.synthetic.Rectification)")
+    parser.add_argument("--vignetting", type=float, default=0.0, metavar="K",
+                        help="synthetic data: per-view radial fall-off 1 - k r^2, k drawn from [0, K] "
+                             "(default 0)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
@@ -129,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
-                         edge_weight=args.edge_weight,
+                         edge_weight=args.edge_weight, rectification_error=args.rectification_error,
+                         vignetting=args.vignetting,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

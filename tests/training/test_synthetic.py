@@ -155,3 +155,40 @@ def test_camera_effects_differ_per_view_and_are_reproducible():
     assert np.abs(first.astype(int) - other.astype(int)).mean() > 1
     exact = apply_camera(image, np.random.default_rng(5), None)
     np.testing.assert_array_equal(exact, (image * 255 + 0.5).astype(np.uint8))
+
+
+def test_camera_geometry_and_vignetting_levers_are_off_by_default_and_do_what_they_say() -> None:
+    """Training-only levers (issue 11's data levers): off, they draw nothing, so the fixed validation split
+    keeps its pixels; on, vignetting darkens the corners and the rectification error moves rows only."""
+    import dataclasses
+
+    from training.data.synthetic import Rectification
+    from training.data.synthetic.photometric import rectify_imperfectly
+
+    config = SyntheticConfig(height=48, width=80, max_disparity=16)
+    plain = generate(11, config)
+    explicit = generate(11, dataclasses.replace(config, photometric=Photometric(vignetting=(0.0, 0.0))))
+    assert np.array_equal(plain.left, explicit.left) and np.array_equal(plain.right, explicit.right)
+
+    flat = SyntheticConfig(height=48, width=80, max_disparity=16,
+                           photometric=Photometric(gain=(1.0, 1.0), channel_gain=0.0, bias=(0.0, 0.0),
+                                                   gamma=(1.0, 1.0), noise_sigma=(0.0, 0.0),
+                                                   blur_probability=0.0, jpeg_probability=0.0))
+    dark = generate(11, dataclasses.replace(flat, photometric=dataclasses.replace(flat.photometric,
+                                                                                    vignetting=(0.3, 0.3))))
+    clean = generate(11, flat)
+    ratio = dark.left.astype(float).sum(-1) / np.maximum(clean.left.astype(float).sum(-1), 1)
+    assert ratio[20:28, 36:44].mean() > 0.98 and ratio[:4, :4].mean() < 0.75   # centre kept, corners darker
+
+    misaligned = generate(11, dataclasses.replace(flat, rectification=Rectification()))
+    assert np.array_equal(misaligned.left, clean.left)
+    assert np.array_equal(misaligned.disparity, clean.disparity)
+    assert not np.array_equal(misaligned.right, clean.right)
+    # Only rows move: an image that varies along x only is unchanged; one that varies along y shifts by
+    # at most the drawn shift plus the rotation's and scale's vertical parts (~1.2 px at 48 x 80).
+    columns = np.tile(np.linspace(0, 1, 80, dtype=np.float32)[None, :, None], (48, 1, 3))
+    unchanged = rectify_imperfectly(columns, np.random.default_rng(0), Rectification())
+    np.testing.assert_allclose(unchanged, columns, atol=1e-6)
+    rows = np.tile(np.arange(48, dtype=np.float32)[:, None, None], (1, 80, 3))
+    moved = rectify_imperfectly(rows, np.random.default_rng(0), Rectification())[4:-4] - rows[4:-4]
+    assert 0.0 < np.abs(moved).max() <= 1.0 + 0.2 * np.pi / 180 * 40 + 0.003 * 24 + 1e-4

@@ -280,3 +280,19 @@ def test_default_model_beats_the_ncc_baseline_by_the_rule_and_on_cones():
     baseline = load_manifest(SHIPPED / "ncc-baseline")["metrics"]
     for data in ("synthetic-validation", "middlebury2003-cones"):
         assert default[data]["bad2"] < baseline[data]["bad2"], data
+
+
+def test_the_data_levers_reach_the_generator_and_bad_values_are_refused(tmp_path, capsys) -> None:
+    plain = TrainingData("synthetic", seed=0, spec=BatchSpec())
+    assert plain.synthetic.rectification is None and plain.synthetic.photometric.vignetting == (0.0, 0.0)
+    levers = TrainingData("synthetic", seed=0, spec=BatchSpec(rectification_error=True, vignetting=0.2))
+    assert levers.synthetic.rectification is not None
+    assert levers.synthetic.photometric.vignetting == (0.0, 0.2)
+    # The levers change the pairs the trainer sees (the same example index, another right view).
+    assert not np.array_equal(plain.sample(3)[0].right, levers.sample(3)[0].right)
+    with pytest.raises(ValueError, match="vignetting must be in"):
+        BatchSpec(vignetting=1.5)
+    assert main(["--config", "9-4conv", "--channels", "4", "--shared", "--iterations", "1",
+                 "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--cones", "",
+                 "--vignetting", "-0.1", "--out", str(tmp_path)]) == 1
+    assert "vignetting must be in [0, 1)" in capsys.readouterr().err

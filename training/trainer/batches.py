@@ -20,7 +20,7 @@ from service.datasets import StereoSample, open_dataset
 from service.datasets.readers import detect_kind
 from training.data.evaluation_only import EVALUATION_ONLY
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
-from training.data.synthetic import VALIDATION_SEED, SyntheticConfig, generate
+from training.data.synthetic import VALIDATION_SEED, Photometric, Rectification, SyntheticConfig, generate
 
 SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
 AUGMENTATIONS = ("none", "photometric")
@@ -41,10 +41,14 @@ class BatchSpec:
     patch: int = 37                # patch mode: the tower's left patch side (the config's ``patch``)
     augmentation: str = DEFAULT_AUGMENTATION
     nonoccluded_only: bool = True  # an occluded pixel has no match to learn (where the data set says so)
+    rectification_error: bool = False  # synthetic: the right view slightly misaligned (Rectification())
+    vignetting: float = 0.0        # synthetic: per-view radial fall-off drawn from [0, vignetting]
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
             raise ValueError(f"augmentation must be one of {AUGMENTATIONS}, got {self.augmentation!r}")
+        if not 0.0 <= self.vignetting < 1.0:
+            raise ValueError(f"vignetting must be in [0, 1), got {self.vignetting}")
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")
@@ -61,8 +65,10 @@ class TrainingData:
         if data != "synthetic":
             _refuse_evaluation_data(data)
             self.pairs = open_dataset(data)
-        self.synthetic = SyntheticConfig(height=spec.height, width=spec.width,
-                                         max_disparity=spec.max_disparity)
+        self.synthetic = SyntheticConfig(
+            height=spec.height, width=spec.width, max_disparity=spec.max_disparity,
+            photometric=Photometric(vignetting=(0.0, spec.vignetting)),
+            rectification=Rectification() if spec.rectification_error else None)
 
     @property
     def trained_range(self) -> list[int]:

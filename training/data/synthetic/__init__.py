@@ -21,8 +21,9 @@ from .generator import (
     random_scene,
     validation_split,
 )
-from .photometric import Photometric, apply_camera
+from .photometric import Photometric, Rectification, apply_camera
 
 __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
+           "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate", "open_validation_split",
            "random_scene", "validation_split"]

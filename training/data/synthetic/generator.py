@@ -19,7 +19,7 @@ import numpy as np
 from service.datasets import StereoSample
 from training.data.photos import data_folder
 
-from .photometric import Photometric, apply_camera
+from .photometric import Photometric, Rectification, apply_camera, rectify_imperfectly
 from .scene import Below, Ellipse, Everywhere, Layer, Plane, Polygon, Segment, render
 from .textures import random_texture
 
@@ -34,6 +34,7 @@ class SyntheticConfig:
     max_disparity: int = 128            # the nearest surface of a scene is at most this far
     photo_probability: float = 0.35     # share of surfaces painted with a photo
     photometric: Photometric | None = dataclasses.field(default_factory=Photometric)
+    rectification: Rectification | None = None   # residual rectification error of the right view (training)
 
     def __post_init__(self) -> None:
         if self.height < 8 or self.width < 8:
@@ -53,7 +54,10 @@ def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSa
                           max_disparity=config.max_disparity, photo_probability=config.photo_probability)
     rendering = render(layers, height=config.height, width=config.width)
     left = apply_camera(rendering.left, rng, config.photometric)
-    right = apply_camera(rendering.right, rng, config.photometric)
+    right = rendering.right
+    if config.rectification is not None:
+        right = rectify_imperfectly(right, rng, config.rectification)
+    right = apply_camera(right, rng, config.photometric)
     return StereoSample(name=f"synthetic-{seed}", left=left, right=right, disparity=rendering.disparity,
                         nonoccluded=~rendering.occluded, max_disparity=config.max_disparity)
 

@@ -1,7 +1,9 @@
 """Camera effects that make the two views of a synthetic pair differ as real cameras do.
 
-Applied to each view independently, in the order light meets them: optical blur, gain and bias (exposure,
-per-channel white balance), gamma, sensor noise, 8-bit quantisation, JPEG re-encoding.
+Applied to each view independently, in the order light meets them: optical blur, vignetting (off unless
+asked), gain and bias (exposure, per-channel white balance), gamma, sensor noise, 8-bit quantisation, JPEG
+re-encoding. ``rectify_imperfectly`` models the other way two real views differ: a rectification that is
+off by a fraction of a pixel (training only; the ground truth stays that of the ideal rig).
 """
 
 from __future__ import annotations
@@ -26,6 +28,21 @@ class Photometric:
     blur_sigma: tuple[float, float] = (0.3, 1.0)
     jpeg_probability: float = 0.4
     jpeg_quality: tuple[int, int] = (60, 95)
+    # Radial fall-off 1 - k r^2 (r = 1 at the image corner), k drawn per view; (0, 0) draws nothing, so the
+    # fixed validation split, made without it, keeps its pixels.
+    vignetting: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Rectification:
+    """Residual rectification error of the right view: ranges (uniform, symmetric about 0) of a vertical
+    shift in pixels, a rotation in degrees and a scale change, about the image centre (their vertical
+    parts: :func:`rectify_imperfectly`). The defaults: what a calibrated rig keeps after rectification,
+    up to about a pixel of vertical disparity at the image edges."""
+
+    vertical_shift: float = 1.0
+    rotation_deg: float = 0.2
+    scale: float = 0.003
 
 
 def apply_camera(image: np.ndarray, rng: np.random.Generator, effects: Photometric | None) -> np.ndarray:
@@ -34,6 +51,8 @@ def apply_camera(image: np.ndarray, rng: np.random.Generator, effects: Photometr
         return _to_uint8(image)
     if rng.random() < effects.blur_probability:
         image = _gaussian_blur(image, float(rng.uniform(*effects.blur_sigma)))
+    if effects.vignetting != (0.0, 0.0):
+        image = image * _falloff(image.shape[:2], float(rng.uniform(*effects.vignetting)))[:, :, None]
     gain = rng.uniform(*effects.gain) * (1 + rng.uniform(-effects.channel_gain, effects.channel_gain, 3))
     image = np.clip(image * gain.astype(np.float32) + np.float32(rng.uniform(*effects.bias)), 0, 1)
     image = image ** np.float32(rng.uniform(*effects.gamma))
@@ -49,6 +68,39 @@ def apply_camera(image: np.ndarray, rng: np.random.Generator, effects: Photometr
         with Image.open(buffer) as decoded:
             encoded = np.asarray(decoded.convert("RGB")).copy()
     return encoded
+
+
+def rectify_imperfectly(image: np.ndarray, rng: np.random.Generator, error: Rectification) -> np.ndarray:
+    """float32 (H, W, 3) resampled (bilinear, edge-clamped) with a small random vertical misalignment:
+    a shift, plus the vertical parts of a rotation and a scale change about the centre.
+
+    Only rows move: the horizontal parts of a residual rotation or scale act as a disparity offset that
+    calibration absorbs, and leaving them out keeps the horizontal ground truth exact."""
+    height, width = image.shape[:2]
+    shift = rng.uniform(-error.vertical_shift, error.vertical_shift)
+    slope = np.tan(np.deg2rad(rng.uniform(-error.rotation_deg, error.rotation_deg)))
+    scale = rng.uniform(-error.scale, error.scale)
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    offset = shift + slope * (x - (width - 1) / 2) + scale * (y - (height - 1) / 2)
+    return _bilinear(image, y - offset, x)
+
+
+def _bilinear(image: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    height, width = image.shape[:2]
+    y, x = np.clip(y, 0, height - 1), np.clip(x, 0, width - 1)
+    y0, x0 = np.minimum(np.floor(y).astype(int), height - 2), np.minimum(np.floor(x).astype(int), width - 2)
+    fy, fx = (y - y0)[..., None].astype(np.float32), (x - x0)[..., None].astype(np.float32)
+    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def _falloff(shape: tuple[int, ...], strength: float) -> np.ndarray:
+    height, width = shape
+    y, x = np.ogrid[0:height, 0:width]
+    cy, cx = (height - 1) / 2, (width - 1) / 2
+    r2 = ((y - cy) ** 2 + (x - cx) ** 2) / (cy ** 2 + cx ** 2)
+    return (1.0 - strength * r2).astype(np.float32)
 
 
 def _gaussian_blur(image: np.ndarray, sigma: float) -> np.ndarray:
