@@ -157,6 +157,7 @@ def test_camera_effects_differ_per_view_and_are_reproducible():
     np.testing.assert_array_equal(exact, (image * 255 + 0.5).astype(np.uint8))
 
 
+@pytest.mark.torch  # the train extra: the generator paints with scikit-image's photographs
 def test_camera_geometry_and_vignetting_levers_are_off_by_default_and_do_what_they_say() -> None:
     """Training-only levers (issue 11's data levers): off, they draw nothing, so the fixed validation split
     keeps its pixels; on, vignetting darkens the corners and the rectification error moves rows only."""
