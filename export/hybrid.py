@@ -2,7 +2,7 @@
 
     python -m export.hybrid --learned service/models/adsm-fast-int8 --window 3 --ncc-weight 0.3 --out DIR
     python -m export.hybrid ... --p1 P1 --p2 P2        (penalties; default: the learned folder's)
-    python -m export.hybrid ... --tune                 (P1/P2 by the shared rule on the synthetic split)
+    python -m export.hybrid ... --tune                 (P1/P2 by the shared rule: export.tune)
 
 Each hybrid tower runs the learned tower and the NCC tower of ``export.baseline`` on the same input and
 concatenates their unit-norm features scaled by sqrt(1 - w) and sqrt(w) (w = ``--ncc-weight``). The
@@ -31,6 +31,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 from export.baseline import build_tower
+from export.tune import tune_folder
 from service.features.manifest import TOWER_FILES, ModelError, load_manifest, write_manifest
 
 FEATURES = "features"
@@ -149,18 +150,6 @@ def build_folder(out: str | Path, *, learned: str | Path, window: int, ncc_weigh
     return write_manifest(out, manifest)
 
 
-def tune(out: Path) -> tuple[float, float, str]:
-    """P1, P2 of the folder by the rule every shipped model follows (lowest synthetic bad-2, EPE breaks
-    ties); the grid is logged on stderr."""
-    from service.datasets import open_dataset
-    from service.evaluation.tuning import TUNING_DATA, tune_penalties
-    from service.matcher import Matcher
-
-    chosen, _ = tune_penalties(Matcher.from_folder(out), open_dataset(TUNING_DATA),
-                               log=lambda row: print(row, file=sys.stderr))
-    return chosen["p1"], chosen["p2"], f"lowest bad-2 on {TUNING_DATA} (service.evaluation.tuning)"
-
-
 def _scalar(value: float) -> Any:
     import numpy as np
 
@@ -189,8 +178,8 @@ def main(argv: list[str] | None = None) -> int:
                        texture_energy=args.texture_energy, command=command)
         path = build_folder(args.out, p1=args.p1, p2=args.p2, **options)
         if args.tune:
-            p1, p2, tuned_on = tune(args.out)
-            path = build_folder(args.out, p1=p1, p2=p2, tuned_on=tuned_on, **options)
+            choice, tuned_on = tune_folder(args.out, log=lambda row: print(row, file=sys.stderr))
+            path = build_folder(args.out, p1=choice["p1"], p2=choice["p2"], tuned_on=tuned_on, **options)
     except (OSError, ValueError, ModelError) as error:
         print(f"export.hybrid: error: {error}", file=sys.stderr)
         return 1
