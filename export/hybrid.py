@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
@@ -150,9 +151,7 @@ def build_folder(out: str | Path, *, learned: str | Path, window: int, ncc_weigh
     return write_manifest(out, manifest)
 
 
-def _scalar(value: float) -> Any:
-    import numpy as np
-
+def _scalar(value: float) -> np.ndarray:
     return np.asarray([value], np.float32)
 
 

@@ -82,17 +82,17 @@ def rectify_imperfectly(image: np.ndarray, rng: np.random.Generator, error: Rect
     scale = rng.uniform(-error.scale, error.scale)
     y, x = np.mgrid[0:height, 0:width].astype(np.float64)
     offset = shift + slope * (x - (width - 1) / 2) + scale * (y - (height - 1) / 2)
-    return _bilinear(image, y - offset, x)
+    return _resample_rows(image, y - offset)
 
 
-def _bilinear(image: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    height, width = image.shape[:2]
-    y, x = np.clip(y, 0, height - 1), np.clip(x, 0, width - 1)
-    y0, x0 = np.minimum(np.floor(y).astype(int), height - 2), np.minimum(np.floor(x).astype(int), width - 2)
-    fy, fx = (y - y0)[..., None].astype(np.float32), (x - x0)[..., None].astype(np.float32)
-    top = image[y0, x0] * (1 - fx) + image[y0, x0 + 1] * fx
-    bottom = image[y0 + 1, x0] * (1 - fx) + image[y0 + 1, x0 + 1] * fx
-    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+def _resample_rows(image: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``image`` sampled at row ``y[r, c]`` of each column c: linear between rows, edge-clamped."""
+    height = image.shape[0]
+    y = np.clip(y, 0, height - 1)
+    y0 = np.minimum(np.floor(y).astype(int), height - 2)
+    fy = (y - y0)[..., None].astype(np.float32)
+    columns = np.arange(image.shape[1])[None, :]
+    return (image[y0, columns] * (1 - fy) + image[y0 + 1, columns] * fy).astype(np.float32)
 
 
 def _falloff(shape: tuple[int, ...], strength: float) -> np.ndarray:
