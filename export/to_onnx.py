@@ -13,10 +13,12 @@ holds the int8 twin, measured on the same data sets; the export log prints its a
 which its manifest records (onnx.quantization.accuracy_vs_fp32).
 
 Each tower becomes one ONNX graph built from the folded PyTorch weights: ``image`` [1, 3, H, W] ->
-edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> convs (+ ReLU) -> L2 normalisation over C
--> ``features`` [1, C, H, W]. BN is folded into each conv's weights and bias. Stride-1 transposed convs
-are written as the equivalent convs (kernel flipped, in/out swapped, zero padding k - 1): ONNX Runtime
-ran the 3->64 Deconv5 at 375x1242 in 0.11 s as a Conv against 0.34 s as a ConvTranspose.
+edge padding by (P - 1) / 2 for patch size P (so H, W are kept) -> [the image and its local
+standardisation, when the model has one: training.networks.standardization] -> convs (+ ReLU) -> L2
+normalisation over C -> ``features`` [1, C, H, W]. BN is folded into each conv's weights and bias.
+Stride-1 transposed convs are written as the equivalent convs (kernel flipped, in/out swapped, zero
+padding k - 1): ONNX Runtime ran the 3->64 Deconv5 at 375x1242 in 0.11 s as a Conv against 0.34 s as a
+ConvTranspose.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from service.features.defaults import RUNTIME_DEFAULTS
 from service.features.manifest import SCHEMA_ID, TOWER_FILES, ModelError, write_manifest
 from training.checkpoint import Checkpoint, load_checkpoint
 from training.networks import FeatureTower, TowerPair, same_padding
+from training.networks.standardization import LocalStandardization
 from training.networks.tower import NORM_EPS
 
 DEFAULT_OPSET = 17
@@ -99,6 +102,8 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
                     numpy_helper.from_array(np.array([NORM_EPS], np.float32), "norm_eps")]
     nodes = [helper.make_node("Pad", ["image", "pads"], ["x0"], mode="edge", name="edge_pad")]
     current = "x0"
+    if tower.standardize is not None:
+        current = _standardization_nodes(current, tower.standardize, nodes, initializers)
     for index, conv in enumerate(fold_tower(tower)):
         inputs = [current, f"w{index}"]
         initializers.append(numpy_helper.from_array(conv.weight, f"w{index}"))
@@ -132,6 +137,32 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
     return model
 
 
+def _standardization_nodes(source: str, standardize: LocalStandardization, nodes: list[onnx.NodeProto],
+                           initializers: list[onnx.TensorProto]) -> str:
+    """Append :class:`LocalStandardization`'s operations (same order, same formulas); returns the output
+    name: the image and its standardisation concatenated over channels."""
+    window, radius = standardize.window, standardize.window // 2
+    pads = np.array([0, 0, radius, radius, 0, 0, radius, radius], np.int64)
+    initializers += [numpy_helper.from_array(pads, "std_pads"),
+                     numpy_helper.from_array(np.array([standardize.eps ** 2], np.float32), "std_eps2")]
+    pool = {"kernel_shape": [window, window], "strides": [1, 1]}
+    nodes += [
+        helper.make_node("Pad", [source, "std_pads"], ["std_padded"], mode="edge", name="std_pad"),
+        helper.make_node("AveragePool", ["std_padded"], ["std_mean"], name="std_mean", **pool),
+        helper.make_node("Mul", ["std_padded", "std_padded"], ["std_squares"], name="std_squares"),
+        helper.make_node("AveragePool", ["std_squares"], ["std_mean_sq"], name="std_mean_sq", **pool),
+        helper.make_node("Mul", ["std_mean", "std_mean"], ["std_mean2"], name="std_mean2"),
+        helper.make_node("Sub", ["std_mean_sq", "std_mean2"], ["std_var_raw"], name="std_var_raw"),
+        helper.make_node("Relu", ["std_var_raw"], ["std_var"], name="std_var"),
+        helper.make_node("Add", ["std_var", "std_eps2"], ["std_var_eps"], name="std_var_eps"),
+        helper.make_node("Sqrt", ["std_var_eps"], ["std_dev"], name="std_dev"),
+        helper.make_node("Sub", [source, "std_mean"], ["std_centred"], name="std_centred"),
+        helper.make_node("Div", ["std_centred", "std_dev"], ["std_z"], name="std_z"),
+        helper.make_node("Concat", [source, "std_z"], ["std_input"], axis=1, name="std_input"),
+    ]
+    return "std_input"
+
+
 def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset: int,
                    command: str, checkpoint_path: str, overrides: dict[str, Any]) -> dict[str, Any]:
     """The manifest (write_manifest fills ``files``), provenance copied from the checkpoint.
@@ -156,7 +187,9 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
         "name": name,
         "description": f"ADSM {model.config.name} towers ({model.config.table} of the paper), "
                        f"{model.channels} features, {'shared' if model.shared else 'separate'} "
-                       "left/right weights",
+                       "left/right weights"
+                       + (f", input standardised over {model.standardize_window}x{model.standardize_window} "
+                          "windows in the graph" if model.standardize_window else ""),
         "config": model.config.name,
         "channels": model.channels,
         "receptive_field": model.receptive_field,

@@ -46,6 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--channels", type=int, default=64)
     parser.add_argument("--shared", action="store_true",
                         help="one tower for both views (converges far faster: docs/training.md)")
+    parser.add_argument("--standardize-window", type=int, default=0, metavar="K",
+                        help="feed the towers the image and its local KxK standardisation (odd K >= 3; "
+                             "0, the default: the raw image, as the paper; docs/networks.md)")
     parser.add_argument("--temperature", type=float, default=10.0,
                         help="initial softmax temperature of the cosine logits (learned afterwards)")
     parser.add_argument("--out", default="runs/train")
@@ -129,7 +132,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.workers < 0:
         print(f"training.train: error: --workers must be >= 0, got {args.workers}", file=sys.stderr)
         return 2
+    if args.standardize_window and (args.standardize_window < 3 or args.standardize_window % 2 == 0):
+        print(f"training.train: error: --standardize-window must be 0 or odd and >= 3, got "
+              f"{args.standardize_window}", file=sys.stderr)
+        return 2
     config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared,
+                         standardize_window=args.standardize_window,
                          temperature=args.temperature, data=args.data,
                          mode=args.mode, iterations=args.iterations or defaults["iterations"],
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,

@@ -86,8 +86,9 @@ def test_onnx_runtime_matches_pytorch_eval_at_odd_shapes(name: str, opset: int) 
 
 
 def _export(tmp_path: Path, *, channels: int = 4, shared: bool = False, training: dict | None = PROVENANCE,
-            **overrides) -> Path:
-    pair = _with_statistics(build_tower_pair("29-1deconv3-4conv", channels=channels, shared=shared))
+            standardize_window: int = 0, **overrides) -> Path:
+    pair = _with_statistics(build_tower_pair("29-1deconv3-4conv", channels=channels, shared=shared,
+                                             standardize_window=standardize_window))
     checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=training,
                                  metrics={"synthetic": {"epe": 3.5}}, deploy={"trained_range": [0, 96]})
     return export_folder(checkpoint, tmp_path / "Model_A", command="test", **overrides).parent
@@ -216,3 +217,24 @@ def test_paper_config_64_channels_matches_pytorch(tmp_path: Path) -> None:
     with torch.no_grad():
         expected = dense_features(pair.right, image).numpy()
     assert _relative_error(_ort_features(model, image), expected) < 1e-4
+
+
+def test_input_standardization_exports_equal_and_the_runtime_measures_its_receptive_field(
+        tmp_path: Path) -> None:
+    pair = _with_statistics(build_tower_pair("13-1deconv3-4conv", channels=6, standardize_window=7))
+    model = tower_to_onnx(pair.left)
+    assert {"AveragePool", "Concat"} <= {node.op_type for node in model.graph.node}
+    for height, width in [(1, 1), (9, 40), (31, 77)]:
+        image = torch.rand(1, 3, height, width)
+        with torch.no_grad():
+            expected = dense_features(pair.left, image).numpy()
+        assert _relative_error(_ort_features(model, image), expected) < 1e-4
+    folder = _export(tmp_path, channels=4, shared=True, standardize_window=5)
+    manifest = load_manifest(folder)
+    assert manifest["receptive_field"] == 33 + 4
+    assert "standardised over 5x5 windows" in manifest["description"]
+    matcher = Matcher.from_folder(folder, threads=1)
+    matcher.warmup()  # measures the towers' reach against receptive_field (service.features.towers)
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
+    assert matcher(left, np.roll(left, -5, axis=1)).disparity.shape == (40, 64)

@@ -24,15 +24,18 @@ class TowerPair(nn.Module):
     """``.left`` and ``.right`` feature towers (the same module when ``shared``) and a temperature."""
 
     def __init__(self, config_name: str, *, channels: int = 64, shared: bool = False,
-                 temperature: float = INITIAL_TEMPERATURE, learn_temperature: bool = True) -> None:
+                 standardize_window: int = 0, temperature: float = INITIAL_TEMPERATURE,
+                 learn_temperature: bool = True) -> None:
         super().__init__()
         if temperature <= 0:
             raise ValueError(f"temperature must be > 0, got {temperature}")
         self.config = get_config(config_name)
         self.channels = channels
         self.shared = shared
-        self.left = FeatureTower(self.config, channels=channels)
-        self.right = self.left if shared else FeatureTower(self.config, channels=channels)
+        self.standardize_window = standardize_window
+        self.left = FeatureTower(self.config, channels=channels, standardize_window=standardize_window)
+        self.right = self.left if shared else FeatureTower(self.config, channels=channels,
+                                                           standardize_window=standardize_window)
         # Log-parametrised so that it stays positive and its gradient scales with its size.
         log_t = torch.tensor(math.log(temperature))
         if learn_temperature:
@@ -46,15 +49,17 @@ class TowerPair(nn.Module):
 
     @property
     def receptive_field(self) -> int:
-        return self.config.receptive_field
+        return self.left.receptive_field
 
     @property
     def temperature(self) -> float:
         return float(self.log_temperature.detach().exp())
 
     def spec(self) -> dict[str, object]:
-        """What rebuilds this module (stored in checkpoints): config name, channels, sharing, temperature."""
+        """What rebuilds this module (stored in checkpoints): config name, channels, sharing, input
+        standardisation window (0: none; checkpoints without the key have none), temperature."""
         return {"config": self.config.name, "channels": self.channels, "shared": self.shared,
+                "standardize_window": self.standardize_window,
                 "learn_temperature": isinstance(self.log_temperature, nn.Parameter)}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
@@ -73,7 +78,9 @@ class TowerPair(nn.Module):
 
 
 def build_tower_pair(config_name: str, *, channels: int = 64, shared: bool = False,
-                     temperature: float = INITIAL_TEMPERATURE, learn_temperature: bool = True) -> TowerPair:
-    """The trainable left/right towers for a named config (see :func:`training.networks.list_configs`)."""
-    return TowerPair(config_name, channels=channels, shared=shared, temperature=temperature,
-                     learn_temperature=learn_temperature)
+                     standardize_window: int = 0, temperature: float = INITIAL_TEMPERATURE,
+                     learn_temperature: bool = True) -> TowerPair:
+    """The trainable left/right towers for a named config (see :func:`training.networks.list_configs`);
+    ``standardize_window`` k > 0 adds the in-graph local input standardisation (docs/networks.md)."""
+    return TowerPair(config_name, channels=channels, shared=shared, standardize_window=standardize_window,
+                     temperature=temperature, learn_temperature=learn_temperature)

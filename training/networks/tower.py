@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from training.networks.configs import TowerConfig
+from training.networks.standardization import LocalStandardization
 
 NORM_EPS = 1e-12  # as torch.nn.functional.normalize; the ONNX graph uses the same floor
 
@@ -30,16 +31,21 @@ class FeatureTower(nn.Module):
     BN + ReLU follow every layer but the last; Table 2 puts no ReLU after the deconvs of the 1- and
     2-Deconv rows (``config.deconv_relu``). No layer has a bias: BN supplies the shift, and the paper's
     weight counts (Tables 4, 5) include none, not even for the last layer.
+
+    ``standardize_window`` k > 0 (the project's extension) feeds the first layer the image and its local
+    k x k standardisation (:class:`LocalStandardization`, 6 channels); the receptive field grows by k - 1.
     """
 
-    def __init__(self, config: TowerConfig, *, channels: int = 64) -> None:
+    def __init__(self, config: TowerConfig, *, channels: int = 64, standardize_window: int = 0) -> None:
         super().__init__()
         if channels < 1:
             raise ValueError(f"channels must be >= 1, got {channels}")
         self.config = config
         self.channels = channels
+        self.standardize_window = standardize_window
+        self.standardize = LocalStandardization(standardize_window) if standardize_window else None
         layers: list[nn.Module] = []
-        in_channels = 3
+        in_channels = 6 if self.standardize is not None else 3
         kernels = [(k, True) for k in config.deconv_kernels] + [(k, False) for k in config.conv_kernels]
         for index, (kernel, is_deconv) in enumerate(kernels):
             last = index == len(kernels) - 1
@@ -58,7 +64,8 @@ class FeatureTower(nn.Module):
 
     @property
     def receptive_field(self) -> int:
-        return self.config.receptive_field
+        """The config's dense receptive field, grown by the standardisation window when there is one."""
+        return self.config.receptive_field + max(self.standardize_window - 1, 0)
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         if image.ndim != 4 or image.shape[1] != 3:
@@ -66,6 +73,8 @@ class FeatureTower(nn.Module):
         if image.shape[2] < self.patch or image.shape[3] < self.patch:
             side = self.patch
             raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the {side}x{side} patch")
+        if self.standardize is not None:
+            image = self.standardize(image)
         return l2_normalize(self.layers(image))
 
     def conv_weight_count(self) -> int:

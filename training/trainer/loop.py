@@ -41,6 +41,7 @@ class TrainConfig:
     config: str = "37-1deconv5-4conv"
     channels: int = 64
     shared: bool = False
+    standardize_window: int = 0         # in-graph local input standardisation (0: raw RGB, as the paper)
     temperature: float = 10.0           # initial softmax temperature (learned afterwards)
     data: str = "synthetic"
     mode: str = "dense"
@@ -103,6 +104,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"--device {config.device}: this torch build sees no CUDA device")
     model = build_tower_pair(config.config, channels=config.channels, shared=config.shared,
+                             standardize_window=config.standardize_window,
                              temperature=config.temperature).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)

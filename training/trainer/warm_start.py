@@ -3,7 +3,9 @@
 Same shapes are copied. A wider layer (more channels, same kernel) gets the old weights in its first
 slots and small random values elsewhere; new BN channels get a small scale, so the wider network starts
 close to the narrow one's function (as Net2Net's function-preserving widening) but the new channels can
-still grow: with exact zeros their gradients would be zero forever.
+still grow: with exact zeros their gradients would be zero forever. A checkpoint of raw-image towers
+starts a model with input standardisation the same way: its first layer's 3 input channels are the
+image's, and the 3 standardised ones start small.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ def warm_start(model: TowerPair, checkpoint_path: str, *, generator: torch.Gener
         if checkpoint.spec[key] != mine:
             raise ValueError(f"--init-from {checkpoint_path}: {key} {checkpoint.spec[key]!r} differs from "
                              f"the model's {mine!r}")
+    saved_window = int(checkpoint.spec.get("standardize_window", 0))
+    if saved_window not in (0, model.standardize_window):
+        raise ValueError(f"--init-from {checkpoint_path}: standardisation window {saved_window} differs from "
+                         f"the model's {model.standardize_window}")
     if int(checkpoint.spec["channels"]) > model.channels:
         raise ValueError(f"--init-from {checkpoint_path}: {checkpoint.spec['channels']} channels cannot "
                          f"initialise a narrower model ({model.channels})")
