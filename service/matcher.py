@@ -32,7 +32,7 @@ from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
-from service.filling import fill_border_band, fill_invalid
+from service.filling import BACKGROUND_RUN, fill_border_band, fill_invalid
 from service.filtering import weighted_median
 from service.kernels import load_kernels_in_background
 from service.limits import LimitError, SearchRange, search_range
@@ -63,6 +63,9 @@ class MatchOptions:
     subpixel: bool = True
     lr_check: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
+    # Occlusions take the farthest of the first BACKGROUND_RUN valid pixels to their left, not the first
+    # (MC-CNN's rule, which copies the fattened foreground into the hole): service/filling/rays.py.
+    background_fill: bool = True
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
     weighted_median: bool = True  # image-guided weighted median at depth edges (service.filtering)
 
@@ -88,8 +91,8 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "border", "weighted_median",
-                     "confidence"):
+        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",
+                     "weighted_median", "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 
@@ -344,7 +347,8 @@ class Matcher:
             validity = inner_check(disparity, right_winners, disparities, min_disparity=offset)
             lap("lr_check")
             if options.fill:
-                disparity, validity = fill_invalid(disparity, validity)
+                run = BACKGROUND_RUN if options.background_fill else 1
+                disparity, validity = fill_invalid(disparity, validity, background_run=run)
                 lap("fill")
             else:
                 disparity[validity != Validity.VALID] = np.nan

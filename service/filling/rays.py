@@ -5,12 +5,18 @@ major axis (directions as in MC-CNN: components in {0, +-0.5, +-1}) until it mee
 left-right check. Only checked-valid pixels are read, never freshly filled ones, so the result does not
 depend on the order of the pixels.
 
-- Occlusion: the first valid pixel on the horizontal ray to the left (MC-CNN's rule). A pixel hidden in the
-  right view lies just right of the background it belongs to, so the left ray reaches the background.
-  Where the left ray leaves the image (the band x < d along the left border, which the right camera never
-  sees) the first valid pixel on the ray to the right is used instead. Measured on Cones with the NCC
-  baseline (P1=30, P2=160, bad-2 over all ground-truth pixels): 13.19 % against 16.18 % for the smallest
-  value among the 16 rays, which trusts the single lowest, often wrong, neighbour.
+- Occlusion: the smallest disparity (the farthest surface) among the first ``BACKGROUND_RUN`` valid pixels
+  on the horizontal ray to the left. A pixel hidden in the right view lies just right of the background it
+  belongs to, so the left ray reaches the background; but the matcher fattens the occluding foreground
+  over the first background pixels, and MC-CNN's rule (the first valid pixel, ``background_run=1``) then
+  copies the foreground into the hole (a third of the filled occlusions were bad-2 by being too large).
+  Longer runs help the synthetic split more and more while Cones' filled occlusions get worse beyond 2:
+  2 is the longest run that Cones does not contradict (docs/training.md, "What the check rejects").
+  Where the left ray leaves the image (the band x < d along the left border,
+  which the right camera never sees) the first valid pixel on the ray to the right is used instead.
+  Measured on Cones with the NCC baseline (P1=30, P2=160, bad-2 over all ground-truth pixels): 13.19 %
+  for the first pixel to the left against 16.18 % for the smallest value among the 16 rays, which trusts
+  the single lowest, often wrong, neighbour in every direction.
 - Mismatch: the median (upper median for an even count, as MC-CNN) of the rays' first valid pixels.
 - No ray finds a valid pixel: NaN and ``Validity.NO_DATA``.
 """
@@ -22,6 +28,8 @@ from numba import prange
 
 from service.jit import njit
 from service.validation.codes import FILLED, MISMATCH, NO_DATA, OCCLUDED, VALID
+
+BACKGROUND_RUN = 2  # valid pixels to the left of an occlusion whose farthest disparity fills it (above)
 
 _DIRECTIONS = np.array(
     [
@@ -49,8 +57,24 @@ def _horizontal_ray(disparity, validity, y, x, step):  # type: ignore[no-untyped
     return False, np.float32(0.0)
 
 
+@njit(inline="always")
+def _background_to_the_left(disparity, validity, y, x, run):  # type: ignore[no-untyped-def]
+    """(found, smallest disparity) among the first ``run`` VALID pixels left of (y, x) in its row."""
+    seen = 0
+    value = np.float32(0.0)
+    xx = x - 1
+    while xx >= 0 and seen < run:
+        if validity[y, xx] == VALID:
+            if seen == 0 or disparity[y, xx] < value:
+                value = disparity[y, xx]
+            seen += 1
+        xx -= 1
+    return seen > 0, value
+
+
 @njit(parallel=True)
-def _fill_rows(disparity, validity, directions, filled, filled_validity):  # type: ignore[no-untyped-def]
+def _fill_rows(disparity, validity, directions, background_run, filled,  # type: ignore[no-untyped-def]
+               filled_validity):
     height, width = disparity.shape
     rays = directions.shape[0]
     for y in prange(height):
@@ -58,7 +82,7 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):  # typ
         for x in range(width):
             cause = validity[y, x]
             if cause == OCCLUDED:
-                found_left, value = _horizontal_ray(disparity, validity, y, x, -1)
+                found_left, value = _background_to_the_left(disparity, validity, y, x, background_run)
                 found_right = False
                 if not found_left:
                     found_right, value = _horizontal_ray(disparity, validity, y, x, 1)
@@ -102,20 +126,24 @@ def _fill_rows(disparity, validity, directions, filled, filled_validity):  # typ
             filled_validity[y, x] = cause | FILLED
 
 
-def fill_invalid(disparity: np.ndarray, validity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fill_invalid(disparity: np.ndarray, validity: np.ndarray, *,
+                 background_run: int = BACKGROUND_RUN) -> tuple[np.ndarray, np.ndarray]:
     """Fill the OCCLUDED and MISMATCH pixels of a float32 HxW disparity; returns new (disparity, validity).
 
     Filled pixels get ``FILLED_OCCLUSION`` / ``FILLED_MISMATCH``, unfillable ones NaN and ``NO_DATA``;
-    every other pixel is copied unchanged.
+    every other pixel is copied unchanged. An occlusion takes the smallest disparity among the first
+    ``background_run`` valid pixels to its left (1: MC-CNN's first valid pixel).
     """
     if disparity.ndim != 2 or disparity.shape != validity.shape:
         raise ValueError(f"disparity {disparity.shape} and validity {validity.shape} must be HxW, same shape")
+    if background_run < 1:
+        raise ValueError(f"background_run must be >= 1, got {background_run}")
     disparity = np.ascontiguousarray(disparity, dtype=np.float32)
     validity = np.ascontiguousarray(validity, dtype=np.uint8)
     filled = disparity.copy()
     filled_validity = validity.copy()
     if np.any(validity == VALID):
-        _fill_rows(disparity, validity, _DIRECTIONS, filled, filled_validity)
+        _fill_rows(disparity, validity, _DIRECTIONS, background_run, filled, filled_validity)
     else:  # nothing to fill from: skip 16 rays to the border from every pixel
         invalid = (validity == OCCLUDED) | (validity == MISMATCH)
         filled[invalid] = np.nan

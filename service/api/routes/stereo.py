@@ -35,6 +35,7 @@ from service.api.routes.encoding import (
     server_timing,
     validity_png,
 )
+from service.filling import BACKGROUND_RUN
 from service.io import encode_disparity, media_type
 from service.io.confidence import MEDIA_TYPES as CONFIDENCE_MEDIA_TYPES
 from service.io.confidence import encode_confidence
@@ -126,6 +127,9 @@ def stereo_options(
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
     fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
                                        "default: lr_check).")] = None,
+    background_fill: Annotated[bool, Query(description="Fill an occlusion from the farthest of the first "
+                                           f"{BACKGROUND_RUN} valid pixels to its left (false: the first, "
+                                           "MC-CNN's rule).")] = True,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,
@@ -144,7 +148,7 @@ def stereo_options(
     try:
         return MatchOptions(
             max_disparity=max_disparity, min_disparity=min_disparity, lr_check=lr_check,
-            fill=lr_check if fill is None else fill,
+            fill=lr_check if fill is None else fill, background_fill=background_fill,
             subpixel=subpixel, border=border, weighted_median=weighted_median, adaptive_p2=adaptive_p2,
             p1=p1, p2=p2,
         )
