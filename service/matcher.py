@@ -32,7 +32,14 @@ from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
 from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
 from service.features.towers import MAX_THREADS
-from service.filling import BACKGROUND_RUN, fill_border_band, fill_invalid
+from service.filling import (
+    BACKGROUND_RUN,
+    MC_CNN_FRACTION,
+    MC_CNN_RUN,
+    MISMATCH_FRACTION,
+    fill_border_band,
+    fill_invalid,
+)
 from service.filtering import weighted_median
 from service.kernels import load_kernels_in_background
 from service.limits import LimitError, SearchRange, search_range
@@ -63,8 +70,9 @@ class MatchOptions:
     subpixel: bool = True
     lr_check: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
-    # Occlusions take the farthest of the first BACKGROUND_RUN valid pixels to their left, not the first
-    # (MC-CNN's rule, which copies the fattened foreground into the hole): service/filling/rays.py.
+    # Rejected pixels filled leaning to the background (occlusions: the farthest of the first valid pixels
+    # to the left; mismatches: the lower tercile of the rays), not by MC-CNN's rules, which copy the
+    # fattened foreground into the holes: service/filling/rays.py.
     background_fill: bool = True
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
     weighted_median: bool = True  # image-guided weighted median at depth edges (service.filtering)
@@ -347,8 +355,10 @@ class Matcher:
             validity = inner_check(disparity, right_winners, disparities, min_disparity=offset)
             lap("lr_check")
             if options.fill:
-                run = BACKGROUND_RUN if options.background_fill else 1
-                disparity, validity = fill_invalid(disparity, validity, background_run=run)
+                run, fraction = ((BACKGROUND_RUN, MISMATCH_FRACTION) if options.background_fill
+                                 else (MC_CNN_RUN, MC_CNN_FRACTION))
+                disparity, validity = fill_invalid(disparity, validity, background_run=run,
+                                                   mismatch_fraction=fraction)
                 lap("fill")
             else:
                 disparity[validity != Validity.VALID] = np.nan

@@ -14,8 +14,8 @@ from typing import Any
 STEP_SWITCHES = {
     "lr_check": "skip the inner left-right check",
     "fill": "leave invalid pixels unfilled (NaN)",
-    "background_fill": "fill an occlusion from the first valid pixel to its left (MC-CNN) instead of the "
-                       "farthest of the first few (service.filling.BACKGROUND_RUN)",
+    "background_fill": "fill rejected pixels by MC-CNN's rules (occlusion: the first valid pixel to the "
+                       "left; mismatch: the median of 16 rays) instead of leaning to the background",
     "subpixel": "integer disparities (no quadratic fit)",
     "adaptive_p2": "constant SGM jump penalty (not lowered at image edges)",
     "border": "leave the left border band (match left of the right image) as matched",

@@ -127,9 +127,10 @@ def stereo_options(
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
     fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
                                        "default: lr_check).")] = None,
-    background_fill: Annotated[bool, Query(description="Fill an occlusion from the farthest of the first "
-                                           f"{BACKGROUND_RUN} valid pixels to its left (false: the first, "
-                                           "MC-CNN's rule).")] = True,
+    background_fill: Annotated[bool, Query(description="Fill rejected pixels leaning to the background: an "
+                                           f"occlusion from the farthest of the first {BACKGROUND_RUN} valid "
+                                           "pixels to its left, a mismatch from the lower tercile of its 16 "
+                                           "rays (false: MC-CNN's first pixel and median).")] = True,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,

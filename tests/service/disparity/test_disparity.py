@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from service.disparity import left_right_winners, winner_takes_all
-from service.filling import fill_invalid
+from service.filling import MC_CNN_FRACTION, fill_invalid
 from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
 
@@ -131,7 +131,7 @@ def test_mismatch_takes_the_median_of_the_rays() -> None:
     validity = np.zeros((11, 11), np.uint8)
     validity[5, 5] = Validity.MISMATCH
     disparity[5, 5] = 99.0
-    filled, _ = fill_invalid(disparity, validity)
+    filled, _ = fill_invalid(disparity, validity, mismatch_fraction=MC_CNN_FRACTION)  # MC-CNN's median
     assert filled[5, 5] == 22.5
 
 

@@ -1,12 +1,13 @@
-"""The occlusion rule of the ray filling: the farthest of the first valid pixels to the left (hand-made
-rows; the mismatch rule and the border cases: tests/service/disparity/test_disparity.py)."""
+"""The background bias of the ray filling: an occlusion takes the farthest of the first valid pixels to
+its left, a mismatch the lower tercile of its rays (hand-made maps; MC-CNN's rules and the border cases:
+tests/service/disparity/test_disparity.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from service.filling import BACKGROUND_RUN, fill_invalid
+from service.filling import BACKGROUND_RUN, MC_CNN_FRACTION, MC_CNN_RUN, MISMATCH_FRACTION, fill_invalid
 from service.matcher import Matcher, MatchOptions, Validity
 from tests.helpers import ROOT
 
@@ -26,7 +27,7 @@ def test_fattened_foreground_left_of_an_occlusion_does_not_fill_it() -> None:
     filled, codes = fill_invalid(disparity, validity)
     np.testing.assert_array_equal(filled[0, 6:9], 2.0)
     assert np.all(codes[0, 6:9] == Validity.FILLED_OCCLUSION)
-    first, _ = fill_invalid(disparity, validity, background_run=1)  # MC-CNN's rule copies the foreground
+    first, _ = fill_invalid(disparity, validity, background_run=MC_CNN_RUN)  # MC-CNN copies the foreground
     np.testing.assert_array_equal(first[0, 6:9], 6.0)
 
 
@@ -39,6 +40,27 @@ def test_only_the_first_run_of_valid_pixels_counts() -> None:
     assert fill_invalid(disparity, validity, background_run=run + 1)[0][0, 3 + run] == 1.0
     with pytest.raises(ValueError, match="background_run"):
         fill_invalid(disparity, validity, background_run=0)
+
+
+def test_mismatch_takes_the_lower_tercile_of_its_rays() -> None:
+    # A mismatch at a depth edge, every neighbour valid, so each of the 16 rays stops one step away: 9
+    # rays meet the foreground 9 (the 7 to the right and the 2 going down), 5 meet a background 3
+    # (up-left, up, left) and 2 a background 5 (down-left).
+    disparity = np.full((9, 9), 4.0, np.float32)
+    disparity[:, 5:] = 9.0
+    disparity[3, 3] = disparity[3, 4] = disparity[4, 3] = 3.0
+    disparity[5, 3], disparity[5, 4] = 5.0, 9.0
+    validity = np.full(disparity.shape, Validity.VALID, np.uint8)
+    validity[4, 4] = Validity.MISMATCH
+    rays = np.sort([3.0] * 5 + [5.0] * 2 + [9.0] * 9)
+    filled, codes = fill_invalid(disparity, validity)
+    assert MISMATCH_FRACTION == (1, 3) and codes[4, 4] == Validity.FILLED_MISMATCH
+    assert filled[4, 4] == rays[16 // 3] == 5.0
+    median, _ = fill_invalid(disparity, validity, mismatch_fraction=MC_CNN_FRACTION)  # the foreground
+    assert median[4, 4] == rays[16 // 2] == 9.0
+    for fraction in ((1, 1), (-1, 2), (2, 1)):
+        with pytest.raises(ValueError, match="mismatch_fraction"):
+            fill_invalid(disparity, validity, mismatch_fraction=fraction)
 
 
 def _occluding_square() -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +77,7 @@ def _occluding_square() -> tuple[np.ndarray, np.ndarray]:
     return left, right
 
 
-def test_matcher_switch_changes_only_filled_occlusions_and_only_towards_the_background() -> None:
+def test_matcher_switch_changes_only_filled_pixels_and_occlusions_only_towards_the_background() -> None:
     left, right = _occluding_square()
     matcher = Matcher.from_folder(ROOT / "service" / "models" / "ncc-baseline", threads=1)
     options = {"max_disparity": 24, "weighted_median": False, "border": False}
@@ -63,6 +85,8 @@ def test_matcher_switch_changes_only_filled_occlusions_and_only_towards_the_back
                          for on in (True, False))
     changed = background.disparity != first.disparity
     assert changed.any()
-    assert np.all(background.validity[changed] == Validity.FILLED_OCCLUSION)
+    filled_codes = {Validity.FILLED_OCCLUSION, Validity.FILLED_MISMATCH}
+    assert set(np.unique(background.validity[changed])) <= filled_codes
     # The run includes the first valid pixel, so the farthest of it is never nearer than MC-CNN's choice.
-    assert np.all(background.disparity[changed] < first.disparity[changed])
+    occlusions = changed & (background.validity == Validity.FILLED_OCCLUSION)
+    assert occlusions.any() and np.all(background.disparity[occlusions] < first.disparity[occlusions])
