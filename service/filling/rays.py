@@ -12,8 +12,8 @@ depend on the order of the pixels.
   copies the foreground into the hole (a third of the filled occlusions were bad-2 by being too large).
   Longer runs help the synthetic split more and more while Cones' filled occlusions get worse beyond 2:
   2 is the longest run that Cones does not contradict (docs/training.md, "What the check rejects").
-  Where the left ray leaves the image (the band x < d along the left border,
-  which the right camera never sees) the first valid pixel on the ray to the right is used instead.
+  Where the left ray leaves the image (the band x < d along the left border, which the right camera
+  never sees) the first valid pixel on the ray to the right is used instead.
   Measured on Cones with the NCC baseline (P1=30, P2=160, bad-2 over all ground-truth pixels): 13.19 %
   for the first pixel to the left against 16.18 % for the smallest value among the 16 rays, which trusts
   the single lowest, often wrong, neighbour in every direction.

@@ -9,8 +9,8 @@ standardises its pixels:
 
 An affine change of the image (gain and bias, per channel) leaves ``z`` unchanged wherever the window's
 contrast is well above ``eps``. The tower receives the image *and* ``z`` (6 channels), so a checkpoint
-trained on raw images warm-starts exactly (the new input channels' weights start near zero) and the
-network can still use absolute intensity where a window is flat and ``z`` is mostly noise.
+trained on raw images warm-starts close to its function (the new input channels' weights start near
+zero) and the network can still use absolute intensity where a window is flat and ``z`` is mostly noise.
 
 Borders are edge-padded like the tower's own padding, so a dense feature's receptive field grows by
 k - 1 pixels (:attr:`FeatureTower.receptive_field`); ``export.to_onnx`` writes the same operations.
