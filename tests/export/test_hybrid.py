@@ -1,4 +1,5 @@
-"""export.hybrid: a learned model's towers and an NCC window blended into one cost, no runtime change."""
+"""export.hybrid: a learned model's towers and a core (an NCC window or another trained folder's towers)
+blended into one cost, no runtime change."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ def image() -> np.ndarray:
 def test_the_blend_is_the_weighted_sum_of_the_two_cosines(image: np.ndarray, window: int,
                                                            weight: float) -> None:
     learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(window, side="left")
-    hybrid = _features(combine_towers(learned, ncc, ncc_weight=weight), image)
+    hybrid = _features(combine_towers(learned, ncc, core_weight=weight), image)
     learned_features, ncc_features = _features(learned, image), _features(ncc, image)
     assert hybrid.shape == (1, learned_features.shape[1] + window * window, 24, 40)
     np.testing.assert_allclose(np.linalg.norm(hybrid, axis=1), 1.0, atol=1e-5)
@@ -51,7 +52,7 @@ def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -
     image = image.copy()
     image[..., :20] = 0.5 + 0.002 * image[..., :20]   # a flat left half beside the textured right one
     learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left")
-    hybrid = _features(combine_towers(learned, ncc, ncc_weight=0.8, texture_energy=0.01), image)
+    hybrid = _features(combine_towers(learned, ncc, core_weight=0.8, texture_energy=0.01), image)
     learned_features, ncc_features = _features(learned, image), _features(ncc, image)
     grey = image[0].transpose(1, 2, 0) @ np.float32([0.299, 0.587, 0.114])
     padded = np.pad(grey, 1, mode="edge")
@@ -64,24 +65,25 @@ def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -
     np.testing.assert_allclose(np.linalg.norm(hybrid, axis=1), 1.0, atol=1e-4)
     assert share[:, 2:17].max() < 0.01 and share[:, 23:].min() > 0.6   # flat -> learned, textured -> NCC
     with pytest.raises(ValueError, match="texture energy must be positive"):
-        combine_towers(learned, ncc, ncc_weight=0.8, texture_energy=0.0)
+        combine_towers(learned, ncc, core_weight=0.8, texture_energy=0.0)
 
 
 @pytest.mark.parametrize("weight", [0.0, 1.0, -0.2, 1.5, math.nan])
 def test_a_weight_outside_the_open_interval_is_refused(weight: float) -> None:
     with pytest.raises(ValueError, match="strictly between 0 and 1"):
-        combine_towers(onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left"), ncc_weight=weight)
+        combine_towers(onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left"), core_weight=weight)
 
 
 def test_the_folder_is_a_valid_model_that_matches(tmp_path: Path) -> None:
-    path = build_folder(tmp_path / "hybrid", learned=LEARNED, window=3, ncc_weight=0.25, command="test")
+    path = build_folder(tmp_path / "hybrid", learned=LEARNED, window=3, core_weight=0.25, command="test")
     manifest, learned = load_manifest(path.parent), load_manifest(LEARNED)
     assert manifest["channels"] == learned["channels"] + 9
     assert manifest["config"] == f"{learned['config']}+ncc-3x3"
     assert manifest["onnx"]["precision"] == learned["onnx"]["precision"]
     assert manifest["training"] == learned["training"]  # the towers' provenance goes with them
     assert (manifest["sgm"]["p1"], manifest["sgm"]["p2"]) == (learned["sgm"]["p1"], learned["sgm"]["p2"])
-    assert manifest["build"]["ncc_weight"] == 0.25 and manifest["metrics"] == {}
+    assert manifest["build"]["core_weight"] == 0.25 and manifest["build"]["ncc_window"] == 3
+    assert manifest["metrics"] == {}
     # A textured pair shifted by 6 px: the hybrid towers find the shift through the unchanged runtime.
     texture = np.random.default_rng(0).integers(0, 256, (48, 96, 3), dtype=np.uint8)
     left, right = texture[:, :-6], texture[:, 6:]
@@ -92,17 +94,66 @@ def test_the_folder_is_a_valid_model_that_matches(tmp_path: Path) -> None:
 def test_the_command_writes_penalties_given_and_reports_errors(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "h"
-    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.4", "--out", str(out),
+    assert main(["--learned", str(LEARNED), "--core-weight", "0.4", "--out", str(out),
                  "--p1", "20", "--p2", "300"]) == 0
     manifest = json.loads((out / "manifest.json").read_text())
     assert (manifest["sgm"]["p1"], manifest["sgm"]["p2"]) == (20.0, 300.0)
     assert manifest["build"]["command"].startswith("python -m export.hybrid --learned")
-    assert main(["--learned", str(LEARNED), "--ncc-weight", "1", "--out", str(tmp_path / "x")]) == 1
-    assert main(["--learned", str(tmp_path / "nothing"), "--ncc-weight", "0.3", "--out", str(out)]) == 1
-    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.3", "--out", str(out), "--window", "4"]) == 1
-    assert main(["--learned", str(LEARNED), "--ncc-weight", "0.3", "--out", str(out), "--tune",
+    assert main(["--learned", str(LEARNED), "--core-weight", "1", "--out", str(tmp_path / "x")]) == 1
+    assert main(["--learned", str(tmp_path / "nothing"), "--core-weight", "0.3", "--out", str(out)]) == 1
+    assert main(["--learned", str(LEARNED), "--core-weight", "0.3", "--out", str(out), "--window", "4"]) == 1
+    assert main(["--learned", str(LEARNED), "--core-weight", "0.3", "--out", str(out), "--tune",
                  "--p1", "3"]) == 1
     errors = capsys.readouterr().err
     assert "strictly between 0 and 1" in errors and "does not exist" in errors
     assert "odd positive size" in errors and "give either --tune or --p1/--p2" in errors
+    assert "Traceback" not in errors
+
+
+TRAINED_CORE = MODELS_DIR / "adsm-fast"
+
+
+def test_a_trained_core_blends_two_learned_cosines(image: np.ndarray) -> None:
+    learned, core = onnx.load(LEARNED / "left.onnx"), onnx.load(TRAINED_CORE / "left.onnx")
+    hybrid = _features(combine_towers(learned, core, core_weight=0.4), image)
+    learned_features, core_features = _features(learned, image), _features(core, image)
+    np.testing.assert_allclose(hybrid[0, :32], np.sqrt(0.6) * learned_features[0], atol=1e-5)
+    np.testing.assert_allclose(hybrid[0, 32:], np.sqrt(0.4) * core_features[0], atol=1e-5)
+    with pytest.raises(ValueError, match="needs an NCC core"):
+        combine_towers(learned, core, core_weight=0.4, texture_energy=0.01)
+
+
+def test_a_folder_with_a_trained_core_records_both_provenances(tmp_path: Path) -> None:
+    path = build_folder(tmp_path / "ensemble", learned=LEARNED, core=TRAINED_CORE, core_weight=0.5,
+                        command="test")
+    manifest, learned, core = (load_manifest(folder) for folder in (path.parent, LEARNED, TRAINED_CORE))
+    assert manifest["channels"] == learned["channels"] + core["channels"]
+    assert manifest["config"] == f"{learned['config']}+{core['config']}"
+    assert manifest["receptive_field"] == max(learned["receptive_field"], core["receptive_field"])
+    # An int8 and an fp32 branch: the work-area bound of the tiles takes int8's, the larger.
+    assert manifest["onnx"]["precision"] == "int8"
+    assert manifest["training"] == learned["training"]
+    assert manifest["build"]["core"] == core["name"]
+    assert manifest["build"]["core_training"] == core["training"]
+    assert "ncc_window" not in manifest["build"]
+    texture = np.random.default_rng(1).integers(0, 256, (48, 96, 3), dtype=np.uint8)
+    left, right = texture[:, :-5], texture[:, 5:]
+    disparity = Matcher.from_folder(path.parent)(left, right, MatchOptions(max_disparity=16)).disparity
+    assert np.nanmedian(np.abs(disparity[8:-8, 24:-8] - 5)) < 0.5
+
+
+def test_the_command_refuses_two_cores_and_its_own_input_as_output(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    copy = tmp_path / "core"
+    with pytest.raises(SystemExit) as usage:  # argparse: --core and --window exclude each other
+        main(["--learned", str(LEARNED), "--core", str(TRAINED_CORE), "--window", "3", "--core-weight", "0.5",
+              "--out", str(tmp_path / "h")])
+    assert usage.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+    assert build_folder(copy, learned=LEARNED, core=TRAINED_CORE, core_weight=0.5).exists()
+    assert main(["--learned", str(LEARNED), "--core", str(copy), "--core-weight", "0.5",
+                 "--out", str(copy)]) == 1
+    assert main(["--learned", str(LEARNED), "--core", str(tmp_path / "missing"), "--core-weight", "0.5",
+                 "--out", str(tmp_path / "h")]) == 1
+    errors = capsys.readouterr().err
+    assert "one of the folders it reads" in errors and "does not exist" in errors
     assert "Traceback" not in errors
