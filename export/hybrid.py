@@ -16,9 +16,9 @@ with no change to the runtime: a blend of costs that fail differently. With an N
 is NCC_window(L(y, x), R(y, x - d)): the small window keeps the cost sharp at depth edges, where a wide
 receptive field fattens the foreground (docs/training.md, "Hybrid cost"); it stays float32 in an int8
 folder (9 taps of a 3x3 window: no work worth quantising). With a trained core of another receptive field
-the blend is an ensemble of two learned costs (docs/training.md, "Ensembles of towers"). The manifest
-keeps the learned folder's training provenance, records the core's in ``build.core_training`` and the
-build in ``build``.
+the blend is an ensemble of two learned costs (docs/training.md, "Small towers with today's runtime,
+and ensembles of towers"). The manifest keeps the learned folder's training provenance, records the
+core's in ``build.core_training`` and the build in ``build``.
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weig
     ])
     graph.output[0].type.tensor_type.shape.dim[1].dim_value = learned_channels + core_channels
     graph.name = f"{graph.name}+{core.graph.name}"
-    share = f"{core_weight:g}" if texture_energy is None else f"{core_weight:g} E / (E + {texture_energy:g})"
+    share = _share_text(core_weight, texture_energy)
     combined.doc_string = (f"hybrid tower: features of the learned cosine and of the core "
                            f"({core.graph.name}), core share {share}")
     onnx.checker.check_model(combined, full_check=True)
@@ -122,7 +122,7 @@ def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float, w
         raise ValueError("give the core as an NCC window or as a trained folder's manifest, not both")
     manifest = {key: copy.deepcopy(value) for key, value in learned.items()
                 if key not in ("files", "metrics")}
-    share = f"{core_weight:g}" if texture_energy is None else f"{core_weight:g} E / (E + {texture_energy:g})"
+    share = _share_text(core_weight, texture_energy)
     if core is None:
         assert window is not None
         core_name, core_config = f"NCC of {window}x{window} grey windows", f"ncc-{window}x{window}"
@@ -180,8 +180,8 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
     towers = []
     for file_name in TOWER_FILES:
         side = file_name.removesuffix(".onnx")
-        core_tower = onnx.load(Path(core) / file_name) if core is not None else build_tower(
-            3 if window is None else window, side=side)
+        core_tower = (build_tower(window, side=side) if window is not None
+                      else onnx.load(Path(core) / file_name))
         towers.append(combine_towers(onnx.load(Path(learned) / file_name), core_tower,
                                      core_weight=core_weight, texture_energy=texture_energy))
     out.mkdir(parents=True, exist_ok=True)
@@ -200,6 +200,10 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
 
 def _scalar(value: float) -> np.ndarray:
     return np.asarray([value], np.float32)
+
+
+def _share_text(core_weight: float, texture_energy: float | None) -> str:
+    return f"{core_weight:g}" if texture_energy is None else f"{core_weight:g} E / (E + {texture_energy:g})"
 
 
 def _opset(model: onnx.ModelProto) -> int:
