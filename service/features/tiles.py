@@ -3,7 +3,7 @@
 Why tiles: ONNX Runtime keeps every intermediate tensor of a run in its arena, and the graphs pad the
 image inside (``halo`` pixels on every side), so one run's work area is ``(h + 2 halo) x (w + 2 halo)``
 padded pixels, not ``h x w``. Row strips alone cannot bound it: an 8 x 262144 image is one strip of
-52 x 262188 padded pixels (6.5x its own size; 1.5 GB per 32 Ki columns with the default model). Tiles
+52 x 262188 padded pixels (6.5x its own size; 1.5 GB per 32 Ki columns with adsm-fast-int8). Tiles
 in both directions, each with ``halo`` real pixels of overlap on every side that is not an image edge,
 keep every run under :data:`TOWER_WORK_BYTES` for every aspect ratio, and give exactly the features of
 the whole image (the graph's edge padding applies only at the image's own edges).
@@ -19,13 +19,16 @@ from typing import Any
 # every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
 # derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
 # they need far more than fp32 ones: adsm-fast-int8 977, adsm-paper-int8 1239, adsm-fast 166,
-# adsm-paper 574, ncc-baseline 448 bytes measured per padded pixel.
-_WORK_BASE = {"int8": 1024, "fp32": 128}
+# adsm-paper 574, ncc-baseline 448 bytes measured per padded pixel of a 64-row tile. A strip of 2 rows
+# needs more: adsm-fast 412 (test_thin_image_peak_stays_within_its_plan, once it became the default), so
+# the fp32 base is 256, not 128.
+_WORK_BASE = {"int8": 1024, "fp32": 256}
 _WORK_PER_CHANNEL = 8
 
-# Largest work area of one tower run. 640 MiB lets the default model (adsm-fast-int8) run a KITTI-size
-# image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the former row-strip budget did, while a
-# 1080p image goes in tiles instead of two 1 Mpx strips (~1 GB of arena).
+# Largest work area of one tower run. 640 MiB lets adsm-fast-int8 (of the fast models, the one with the
+# most work per pixel) run a KITTI-size image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the
+# former row-strip budget did, while a 1080p image goes in tiles instead of two 1 Mpx strips (~1 GB of
+# arena).
 TOWER_WORK_BYTES = 640 * 1024 * 1024
 
 

@@ -20,7 +20,8 @@ from service.features.tiles import TOWER_WORK_BYTES, work_bytes_per_pixel
 from service.memory import memory_bound, plan_request, tower_work_limit
 from tests.helpers import InstantMatcher, ready_client
 
-MODELS = ["adsm-fast-int8", "adsm-fast", "adsm-paper-int8", "adsm-paper", "ncc-baseline"]
+MODELS = sorted(folder.name for folder in default_model_dir().parent.iterdir()
+                if (folder / "manifest.json").is_file())
 DEFAULTS = Settings()
 # Every aspect ratio at the default pixel limit, from one row to one column.
 SHAPES = [(1, 2_100_000), (2, 1_050_000), (8, 262_144), (45, 46_666), (375, 1242), (1080, 1920),
