@@ -16,12 +16,12 @@ from PIL import Image
 from service.api import Settings, create_app
 from service.cli import main
 from service.features import default_model_dir, load_manifest
+from service.features.manifest import MODELS_DIR
 from service.features.tiles import TOWER_WORK_BYTES, work_bytes_per_pixel
 from service.memory import memory_bound, plan_request, tower_work_limit
 from tests.helpers import InstantMatcher, ready_client
 
-MODELS = sorted(folder.name for folder in default_model_dir().parent.iterdir()
-                if (folder / "manifest.json").is_file())
+MODELS = sorted(path.parent.name for path in MODELS_DIR.glob("*/manifest.json"))  # every shipped folder
 DEFAULTS = Settings()
 # Every aspect ratio at the default pixel limit, from one row to one column.
 SHAPES = [(1, 2_100_000), (2, 1_050_000), (8, 262_144), (45, 46_666), (375, 1242), (1080, 1920),
