@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from service import jit
+from service.aggregation import shiftable_windows
 from service.cost import COST_DTYPE, cost_volume
 from service.disparity import left_right_winners
 from service.filling import fill_invalid
@@ -33,7 +34,7 @@ from service.refinement import refine_subpixel
 from service.validation import inner_check
 
 PATHS = 4
-STAGES = ("cost_volume", "sgm", "disparity", "subpixel", "lr_check", "fill")
+STAGES = ("cost_volume", "shiftable_windows", "sgm", "disparity", "subpixel", "lr_check", "fill")
 
 
 def peak_rss_mib() -> float:
@@ -98,6 +99,8 @@ def time_stages(left: np.ndarray, right: np.ndarray, disparities: int, repeats: 
         clock = time.perf_counter()
         cost_volume(left, right, disparities, scale=128.0, out=raw)
         times["cost_volume"] = -clock + (clock := time.perf_counter())
+        shiftable_windows(raw)
+        times["shiftable_windows"] = -clock + (clock := time.perf_counter())
         cpu = time.process_time()
         aggregate(raw, p1=30.0, p2=160.0, out=aggregated)
         times["sgm_cpu"] = time.process_time() - cpu  # all threads' CPU seconds: robust to other load

@@ -25,6 +25,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from service.aggregation.shiftable_windows import _shift_rows
 from service.cost.volume import _cost_rows
 from service.disparity.wta import _left_right_winners, _winners
 from service.filling.border import _band_rows
@@ -46,6 +47,7 @@ def _signatures(*, confidence: bool) -> list[tuple[Any, tuple[Any, ...]]]:
     real = np.float32(0)
     calls: list[tuple[Any, tuple[Any, ...]]] = [
         (_cost_rows, (features, features, real, 0, volume)),
+        (_shift_rows, (volume, 0)),
         (_horizontal_paths, (volume, real, real, grey, real, volume)),
         (_vertical_paths, (volume, real, real, grey, real, volume)),
         (_left_right_winners, (volume, 0, winners, winners)),

@@ -1,7 +1,7 @@
 """Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
 
-    towers -> cost_volume -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check) -> fill -> border
-    -> weighted_median
+    towers -> cost_volume -> shiftable_windows -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check)
+    -> fill -> border -> weighted_median
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from service import jit
+from service.aggregation import shiftable_windows
 from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
@@ -65,6 +66,10 @@ class MatchOptions:
     max_disparity: int | None = None  # range size D; None -> manifest disparity.default_max, clipped to fit
     p1: float | None = None  # None -> manifest sgm.p1 (whole cost units, see cost.scale; <= MAX_PENALTY)
     p2: float | None = None  # None -> manifest sgm.p2
+    # Each cost the lowest of its row neighbours' (x +- 1) at the same disparity before SGM: windows that
+    # may shift off a depth edge (service.aggregation.shiftable_windows). None -> manifest
+    # sgm.shiftable_windows (absent: off), set where it measurably helps that model (docs/training.md).
+    shiftable_windows: bool | None = None
     sgm: bool = True
     adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
     subpixel: bool = True
@@ -99,6 +104,8 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
+        if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
+            raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
         for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",
                      "weighted_median", "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
@@ -210,9 +217,9 @@ class Matcher:
             self._warm_kernels(left, right)
 
     def _warm_kernels(self, left: np.ndarray, right: np.ndarray) -> None:
-        # All on: cost volume, SGM, left-right winners, sub-pixel, confidence, inner check, filling;
-        # lr_check off: plain winner-takes-all.
-        every_kernel = MatchOptions(max_disparity=4, confidence=True)
+        # All on: cost volume, shiftable windows, SGM, left-right winners, sub-pixel, confidence, inner
+        # check, filling; lr_check off: plain winner-takes-all.
+        every_kernel = MatchOptions(max_disparity=4, confidence=True, shiftable_windows=True)
         for options in (every_kernel, MatchOptions(max_disparity=4, lr_check=False, fill=False)):
             self(left, right, options)
 
@@ -303,6 +310,9 @@ class Matcher:
         offset = options.min_disparity
         p1 = float(self.manifest["sgm"]["p1"] if options.p1 is None else options.p1)
         p2 = float(self.manifest["sgm"]["p2"] if options.p2 is None else options.p2)
+        shift = options.shiftable_windows
+        if shift is None:
+            shift = bool(self.manifest["sgm"].get("shiftable_windows", False))
         jit.set_threads(self.threads)
 
         timings: dict[str, float] = {}
@@ -327,6 +337,9 @@ class Matcher:
                              out=raw)
         del left_features, right_features
         lap("cost_volume")
+        if shift:
+            shiftable_windows(volume)
+            lap("shiftable_windows")
         if options.sgm:
             guide = left.mean(axis=2, dtype=np.float32) if options.adaptive_p2 else None
             volume = aggregate(volume, p1=p1, p2=p2, out=aggregated, guide=guide)

@@ -22,10 +22,17 @@ STEP_SWITCHES = {
     "weighted_median": "no image-guided weighted median at depth edges",
 }
 
+# MatchOptions field -> help of its --<field> / --no-<field> pair: steps whose default is the model's.
+MODEL_STEPS = {
+    "shiftable_windows": "before SGM, each cost the lowest of its row neighbours' (x +- 1) at the same "
+                         "disparity: windows that can shift off a depth edge (default: the model's "
+                         "sgm.shiftable_windows)",
+}
+
 
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
-    """``--min-disparity``, ``--p1``, ``--p2`` and a ``--no-<step>`` flag for each of ``steps`` (keys of
-    STEP_SWITCHES)."""
+    """``--min-disparity``, ``--p1``, ``--p2``, a ``--no-<step>`` flag for each of ``steps`` (keys of
+    STEP_SWITCHES) and a ``--<step>`` / ``--no-<step>`` pair for each of MODEL_STEPS."""
     add("--min-disparity", type=int, default=0, metavar="M",
         help="smallest disparity searched: the range is [M, M + D) with D from --max-disparity "
         "(as OpenCV's minDisparity; default 0, negative allowed)")
@@ -33,12 +40,16 @@ def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STE
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
     for step in steps:
         add(f"--no-{step.replace('_', '-')}", action="store_true", help=STEP_SWITCHES[step])
+    for step, text in MODEL_STEPS.items():
+        add(f"--{step.replace('_', '-')}", action=argparse.BooleanOptionalAction, default=None, help=text)
 
 
 def match_options(args: argparse.Namespace) -> Any:
-    """The MatchOptions of parsed flags; a step without its flag in this command stays on."""
+    """The MatchOptions of parsed flags; a step without its --no- flag in this command stays on, a model
+    step without its flags takes the model's setting."""
     from service.matcher import MatchOptions  # lazily: `adsm --help` need not load Numba
 
-    switches = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
+    switches: dict[str, Any] = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
+    switches.update({step: getattr(args, step, None) for step in MODEL_STEPS})  # None: the model's
     return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity, p1=args.p1,
                         p2=args.p2, **switches)

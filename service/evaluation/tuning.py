@@ -20,6 +20,7 @@ baseline's figures, as its manifest records them (``build.selection``):
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 from collections.abc import Callable, Sequence
@@ -37,13 +38,18 @@ TUNING_DATA = "synthetic:20"
 
 def tune_penalties(matcher: StereoFunction, dataset: Sequence[StereoSample], *,
                    p1_grid: Sequence[float] = P1_GRID, p2_grid: Sequence[float] = P2_GRID,
-                   log: Callable[[str], Any] | None = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
-    """The (P1, P2) of the grid (P2 >= P1) with the lowest all-pixel bad-2 on ``dataset``, and every row."""
+                   log: Callable[[str], Any] | None = None,
+                   options: MatchOptions | None = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """The (P1, P2) of the grid (P2 >= P1) with the lowest all-pixel bad-2 on ``dataset``, and every row.
+
+    ``options`` sets the other steps (default: the model's); its P1 and P2 are replaced by the grid's.
+    """
+    options = MatchOptions() if options is None else options
     rows = []
     for p1, p2 in itertools.product(p1_grid, p2_grid):
         if p2 < p1:
             continue
-        report = evaluate(matcher, dataset, options=MatchOptions(p1=p1, p2=p2))
+        report = evaluate(matcher, dataset, options=dataclasses.replace(options, p1=p1, p2=p2))
         rows.append({"p1": p1, "p2": p2, "bad2": report["all"]["bad2"], "bad3": report["all"]["bad3"],
                      "epe": report["all"]["epe"]})
         if log is not None:

@@ -16,13 +16,18 @@ from service.features.manifest import write_manifest
 pytestmark = pytest.mark.torch
 
 
-def test_the_rule_picks_the_lowest_bad2_and_write_re_measures(tmp_path: Path,
-                                                              capsys: pytest.CaptureFixture[str]) -> None:
+def _measured_folder(tmp_path: Path) -> Path:
+    """A 5x5 NCC folder whose metrics were measured with other penalties: --write must replace them."""
     folder = build_folder(tmp_path / "ncc", window=5, p1=30.0, p2=160.0).parent
     manifest = load_manifest(folder)
-    # Metrics measured with the old penalties: --write must replace them, not keep them.
     write_manifest(folder, {**manifest, "metrics": {"synthetic-validation": {"bad2": 99.0,
                                                                              "data": "synthetic:1"}}})
+    return folder
+
+
+def test_the_rule_picks_the_lowest_bad2_and_write_re_measures(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    folder = _measured_folder(tmp_path)
     assert main(["--model", str(folder), "--pairs", "1", "--p1", "5", "65", "--p2", "540", "--write"]) == 0
     out, err = capsys.readouterr()
     rows = [json.loads(line) for line in err.splitlines() if line.startswith("{")]
@@ -35,6 +40,24 @@ def test_the_rule_picks_the_lowest_bad2_and_write_re_measures(tmp_path: Path,
     entry = written["metrics"]["synthetic-validation"]
     assert entry["bad2"] == pytest.approx(next(r["bad2"] for r in rows if r["p1"] == chosen["p1"]), abs=1e-3)
     assert entry["command"].startswith("python -m export.tune --model")
+
+
+def test_shiftable_windows_are_tuned_with_and_recorded(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    folder = _measured_folder(tmp_path)
+    grid = ["--model", str(folder), "--pairs", "1", "--p1", "30", "--p2", "160"]
+    assert main(grid) == 0
+    centred = json.loads(capsys.readouterr().err.splitlines()[-1])
+    assert main([*grid, "--shiftable-windows", "--write"]) == 0
+    shifted = json.loads(capsys.readouterr().err.splitlines()[0])
+    assert shifted["bad2"] != centred["bad2"]  # the step ran in the tuning
+    written = load_manifest(folder)
+    assert written["sgm"]["shiftable_windows"] is True
+    assert "shiftable windows on" in written["sgm"]["tuned_on"]
+    entry = written["metrics"]["synthetic-validation"]  # measured with the step: the tuning's figure
+    assert entry["bad2"] == pytest.approx(shifted["bad2"], abs=1e-3)
+    assert main([*grid, "--no-shiftable-windows", "--write"]) == 0
+    assert load_manifest(folder)["sgm"]["shiftable_windows"] is False
 
 
 def test_bad_arguments_end_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

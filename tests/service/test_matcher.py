@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 
 from service.features import ModelError
+from service.features.manifest import default_model_dir, load_manifest, write_manifest
 from service.filtering import weighted_median
 from service.matcher import Matcher, MatchOptions, StereoResult, Validity
 from tests.helpers import slanted_plane_pair
@@ -41,6 +44,9 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     assert np.all(raw.validity == Validity.VALID)
     assert np.all(raw.disparity == np.round(raw.disparity))  # integers without sub-pixel
     assert "subpixel" not in raw.timings and "lr_check" not in raw.timings
+
+    shifted = matcher(left, right, MatchOptions(**options, shiftable_windows=True))  # opt-in, before SGM
+    assert list(shifted.timings)[1:4] == ["cost_volume", "shiftable_windows", "sgm"]
 
     unfilled = matcher(left, right, MatchOptions(**options, fill=False, border=False))
     invalid = unfilled.validity != Validity.VALID
@@ -108,6 +114,7 @@ def test_rejects_bad_images(matcher: Matcher, left, right, message: str) -> None
         ({"p2": "160"}, "p2"),
         ({"p2": 4097.0}, "p2"),
         ({"fill": "yes"}, "fill"),
+        ({"shiftable_windows": "yes"}, "shiftable_windows"),
     ],
 )
 def test_rejects_bad_options(options: dict, message: str) -> None:
@@ -119,6 +126,23 @@ def test_rejects_options_of_another_type(matcher: Matcher) -> None:
     image = np.zeros((4, 4, 3), np.uint8)
     with pytest.raises(ValueError, match="MatchOptions"):
         matcher(image, image, {"max_disparity": 4})
+
+
+def test_shiftable_windows_default_to_the_manifest(tmp_path) -> None:
+    source = Matcher.from_folder(threads=2)
+    folder = tmp_path / "model"
+    shutil.copytree(default_model_dir(), folder)
+    manifest = load_manifest(folder)
+    manifest["sgm"]["shiftable_windows"] = True
+    write_manifest(folder, manifest)
+    shifted = Matcher.from_folder(folder, threads=2)
+    left, right, _, _ = slanted_plane_pair(height=40, width=64)
+    default = shifted(left, right, MatchOptions(max_disparity=24))
+    assert "shiftable_windows" in default.timings
+    off = shifted(left, right, MatchOptions(max_disparity=24, shiftable_windows=False))
+    assert "shiftable_windows" not in off.timings
+    plain = source(left, right, MatchOptions(max_disparity=24, shiftable_windows=False))
+    np.testing.assert_array_equal(off.disparity, plain.disparity)
 
 
 def test_bad_model_folder_raises_model_error(tmp_path) -> None:

@@ -106,7 +106,7 @@ left, right = (rng.integers(0, 256, (37, 53, 3), dtype=np.uint8) for _ in range(
 switches = [field.name for field in dataclasses.fields(MatchOptions) if isinstance(field.default, bool)]
 every = [MatchOptions(max_disparity=12), MatchOptions(sgm=False, subpixel=False),
          MatchOptions(lr_check=False, fill=False), MatchOptions(fill=False, p1=0, p2=0),
-         MatchOptions(min_disparity=-3, max_disparity=9)]
+         MatchOptions(min_disparity=-3, max_disparity=9), MatchOptions(shiftable_windows=True)]
 every += [MatchOptions(**{name: not getattr(MatchOptions(), name)}) for name in switches]  # each flipped
 for options in every:
     matcher(left, right, options)

@@ -132,6 +132,10 @@ def stereo_options(
                                            "pixels to its left, a mismatch from the lower tercile of its 16 "
                                            "rays (false: MC-CNN's first pixel and median).")] = True,
     subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
+    shiftable_windows: Annotated[bool | None, Query(description="Before SGM, each cost the lowest of its "
+                                                    "row neighbours' (x +- 1) at the same disparity: windows "
+                                                    "that can shift off a depth edge (default: the model's "
+                                                    "sgm.shiftable_windows).")] = None,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
@@ -150,7 +154,8 @@ def stereo_options(
         return MatchOptions(
             max_disparity=max_disparity, min_disparity=min_disparity, lr_check=lr_check,
             fill=lr_check if fill is None else fill, background_fill=background_fill,
-            subpixel=subpixel, border=border, weighted_median=weighted_median, adaptive_p2=adaptive_p2,
+            subpixel=subpixel, shiftable_windows=shiftable_windows, border=border,
+            weighted_median=weighted_median, adaptive_p2=adaptive_p2,
             p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500

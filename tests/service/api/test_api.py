@@ -240,6 +240,7 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     strip = (slice(None), slice(0, SHIFT))
     assert np.mean(np.abs(banded[strip] - SHIFT) <= 1) > 0.95 and not np.array_equal(banded, unbanded)
     assert not np.array_equal(await disparity(adaptive_p2="false"), banded)
+    assert not np.array_equal(await disparity(shiftable_windows="true"), banded)
 
 
 # --- POST /depth and /pointcloud ----------------------------------------------------------------------------

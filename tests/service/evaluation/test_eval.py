@@ -151,6 +151,10 @@ def test_adsm_eval_switches_reach_the_matcher(tiny_cones, capsys):
         assert main(["eval", "--model", str(BASELINE), "--data", str(tiny_cones), "--json", "-", *flags]) == 0
         return json.loads(capsys.readouterr().out)["options"]
 
-    assert options()["border"] is True and options()["adaptive_p2"] is True
-    off = options("--no-border", "--no-adaptive-p2")
-    assert off["border"] is False and off["adaptive_p2"] is False
+    default = options()
+    assert default["border"] is True and default["adaptive_p2"] is True
+    assert default["shiftable_windows"] is None  # the model's setting
+    switched = options("--no-border", "--no-adaptive-p2", "--shiftable-windows")
+    assert switched["border"] is False and switched["adaptive_p2"] is False
+    assert switched["shiftable_windows"] is True
+    assert options("--no-shiftable-windows")["shiftable_windows"] is False
