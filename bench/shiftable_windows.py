@@ -14,6 +14,7 @@ on (docs/training.md, "Shiftable windows").
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 from unittest import mock
 
@@ -28,7 +29,7 @@ from training.data.evaluation_only import CONES_SPEC
 def score(matcher: Matcher, radius: int, spec: str, max_disparity: int | None,
           options: MatchOptions) -> dict[str, float]:
     """bad-2, bad-1, EPE and accepted-pixel bad-2 of one folder at one radius on one data set."""
-    options = MatchOptions(p1=options.p1, p2=options.p2, shiftable_windows=radius > 0)
+    options = dataclasses.replace(options, shiftable_windows=radius > 0)
     step = functools.partial(shiftable_windows, radius=max(radius, 0))
     with mock.patch.object(service.matcher, "shiftable_windows", step):
         report = evaluate(matcher, open_dataset(spec), max_disparity=max_disparity, options=options)

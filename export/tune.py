@@ -39,12 +39,11 @@ def tune_folder(folder: str | Path, *, pairs: int = 20, p1_grid: Sequence[float]
 
     spec = f"{TUNING_DATA.partition(':')[0]}:{pairs}"
     matcher = Matcher.from_folder(folder)  # verifies both towers' sha256
+    options = MatchOptions(shiftable_windows=shiftable_windows)
     choice, _ = tune_penalties(matcher, open_dataset(spec), p1_grid=p1_grid, p2_grid=p2_grid, log=log,
-                               options=MatchOptions(shiftable_windows=shiftable_windows))
+                               options=options)
     grid = f"grid P1 {list(p1_grid)} x P2 {list(p2_grid)}"
-    if shiftable_windows is None:
-        shiftable_windows = bool(matcher.manifest["sgm"].get("shiftable_windows", False))
-    grid += ", shiftable windows on" if shiftable_windows else ""
+    grid += ", shiftable windows on" if matcher.uses_shiftable_windows(options) else ""
     return choice, f"{grid}, lowest bad-2 on the synthetic validation split ({pairs} pairs; export.tune)"
 
 

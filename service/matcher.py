@@ -265,6 +265,12 @@ class Matcher:
             del part
         return features
 
+    def uses_shiftable_windows(self, options: MatchOptions) -> bool:
+        """Whether a call with ``options`` runs the shiftable-window step (None: the manifest's setting)."""
+        if options.shiftable_windows is None:
+            return bool(self.manifest["sgm"].get("shiftable_windows", False))
+        return bool(options.shiftable_windows)
+
     def search_range(self, width: int, options: MatchOptions) -> SearchRange:
         """The range a call searches (service/limits.py): the option's, else the model's default size
         clipped to the width; DisparityRangeError (a ValueError) when the range cannot fit the image."""
@@ -310,9 +316,6 @@ class Matcher:
         offset = options.min_disparity
         p1 = float(self.manifest["sgm"]["p1"] if options.p1 is None else options.p1)
         p2 = float(self.manifest["sgm"]["p2"] if options.p2 is None else options.p2)
-        shift = options.shiftable_windows
-        if shift is None:
-            shift = bool(self.manifest["sgm"].get("shiftable_windows", False))
         jit.set_threads(self.threads)
 
         timings: dict[str, float] = {}
@@ -337,7 +340,7 @@ class Matcher:
                              out=raw)
         del left_features, right_features
         lap("cost_volume")
-        if shift:
+        if self.uses_shiftable_windows(options):
             shiftable_windows(volume)
             lap("shiftable_windows")
         if options.sgm:
