@@ -74,6 +74,13 @@ def _opened(source: bytes | str | Path, max_pixels: int | None, name: str) -> It
         raise ImageDecodeError(f"{name}: not a readable image ({_unidentified(source)})") from error
     except (ValueError, SyntaxError, EOFError) as error:  # malformed headers
         raise ImageDecodeError(f"{name}: not a readable image ({_reason(error)})") from error
+    except OSError as error:
+        if error.errno is not None:  # the file itself (missing, a folder, unreadable): the caller's to say
+            raise
+        # Pillow's word on a header it cannot parse: "Truncated File Read" (a PNG cut inside IHDR),
+        # "Unsupported BMP pixel depth", "could not create decoder object" (WebP), ...
+        raise ImageDecodeError(f"{name}: not a readable image (malformed or truncated header: "
+                               f"{_reason(error)})") from error
     with image:
         width, height = image.size
         if max_pixels is not None and width * height > max_pixels:

@@ -182,6 +182,17 @@ def test_truncated_png_is_a_decode_error():
         read_image(png[: len(png) // 2])
 
 
+@pytest.mark.parametrize("fmt", ["PNG", "BMP", "WEBP"])
+def test_image_cut_inside_its_header_is_a_decode_error(fmt):
+    # Pillow's open() raises a bare OSError for these ("Truncated File Read" for a PNG cut inside IHDR,
+    # "Unsupported BMP ..." or "could not create decoder object" for WebP): the HTTP service answered 500.
+    data = _encode(Image.fromarray(RNG.integers(0, 256, (8, 8, 3), dtype=np.uint8)), fmt)
+    for size in (16, 20, 28, 30):
+        for read in (read_image, image_size):
+            with pytest.raises(ImageDecodeError, match="left: not a readable image"):
+                read(data[:size], name="left")
+
+
 def test_float_image_refused():
     with pytest.raises(ImageDecodeError, match="unsupported pixel format F"):
         read_image(_encode(Image.fromarray(np.ones((2, 2), np.float32)), "TIFF"))
