@@ -143,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         pass  # a pair's size is known once it is drawn
     elif not batch:  # refuse before the model loads, from the headers alone
         first_size = checks.check_pair(pairs[0], manifest, limits, options)
+        outputs.check_paths(targets, pairs[0].name, [pairs[0].left, checks.right_path(pairs[0])])
     elif pairs and pairs[0].right is not None:
         try:  # only to prepare the first call: a bad pair is reported in its turn
             first_size = checks.pair_size(pairs[0])

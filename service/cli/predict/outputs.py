@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -35,6 +36,12 @@ class Targets:
     def path(self, template: str, name: str) -> Path:
         return Path(template.replace("{name}", name))
 
+    def templates(self) -> dict[str, str]:
+        """Flag -> template of every output asked for, the disparity map first."""
+        named = {"-o": self.disparity, "--validity": self.validity, "--confidence": self.confidence,
+                 "--depth": self.depth, "--pointcloud": self.pointcloud}
+        return {flag: template for flag, template in named.items() if template is not None}
+
 
 def targets(args: argparse.Namespace, batch: bool) -> Targets:
     """The output templates of -o/--out-dir, --format, --validity, --confidence, --depth and --pointcloud,
@@ -43,6 +50,8 @@ def targets(args: argparse.Namespace, batch: bool) -> Targets:
     if args.out_dir is not None:
         if disparity is not None:
             raise ValueError("give -o or --out-dir, not both")
+        if args.out_dir.exists() and not args.out_dir.is_dir():
+            raise ValueError(f"--out-dir {str(args.out_dir)!r} is a file, not a folder")
         disparity = str(args.out_dir / ("{name}" + EXTENSION[args.format or "png16"]))
     if disparity is None:
         raise ValueError("the disparity output is missing: -o OUT (or --out-dir DIR)")
@@ -62,6 +71,34 @@ def targets(args: argparse.Namespace, batch: bool) -> Targets:
         if template is not None and batch and "{name}" not in template:
             raise ValueError(f"{flag} {template!r} must hold {{name}} when several pairs are written")
     return Targets(disparity, output_format, args.validity, args.confidence, args.depth, args.pointcloud)
+
+
+def check_paths(write: Targets, name: str, inputs: Sequence[Path]) -> None:
+    """ValueError when two outputs of the pair ``name`` are one file (the second would silently replace the
+    first) or an output is one of the pair's ``inputs`` (the image would be overwritten by a map); checked
+    before the pair is decoded, so nothing is written."""
+    seen: list[tuple[str, Path]] = []
+    for flag, template in write.templates().items():
+        path = write.path(template, name)
+        for source in inputs:
+            if _same_file(path, source):
+                raise ValueError(f"{flag} {str(path)!r} is the pair's input image {str(source)!r}: writing "
+                                 "it would destroy the input; choose another output path")
+        for other_flag, other in seen:
+            if _same_file(path, other):
+                raise ValueError(f"{other_flag} and {flag} name the same file {str(path)!r}: one would "
+                                 "overwrite the other; give each output its own path")
+        seen.append((flag, path))
+
+
+def _same_file(first: Path, second: Path) -> bool:
+    """The two paths name one file (after ``..``, symbolic links, or as hard links of an existing file)."""
+    if first.resolve() == second.resolve():
+        return True
+    try:
+        return os.path.samefile(first, second)
+    except OSError:  # one of them does not exist (yet): not the same file
+        return False
 
 
 def write_maps(write: Targets, name: str, result: StereoResult) -> None:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.cli.predict.checks import check_size, pair_size, right_path, search_options
-from service.cli.predict.outputs import Targets, write_maps, write_metric
+from service.cli.predict.outputs import Targets, check_paths, write_maps, write_metric
 from service.cli.predict.sources import Failed, Frames, Item, Pair, Skipped, frame_name
 from service.datasets import StereoSample
 from service.io import read_pair
@@ -45,6 +45,7 @@ class Runner:
             begun -= pair.decode_seconds
         else:
             size = pair_size(pair)
+            check_paths(self.targets, pair.name, [pair.left, right_path(pair)])
         options = search_options(self.options, pair.max_disparity, size[1])
         check_size(size, self.matcher.manifest, self.limits, options)
         if isinstance(pair, Frames):

@@ -199,8 +199,13 @@ def _folder_pairs(root: Path) -> list[Pair]:
 def _listed_pairs(listing: Path) -> list[Pair]:
     if not listing.is_file():
         raise ValueError(f"--pairs {str(listing)!r} does not exist or is not a file")
+    try:
+        text = listing.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"--pairs {str(listing)!r} is not a UTF-8 text file (one 'LEFT RIGHT' pair per "
+                         "line)") from None
     found = []
-    for number, line in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0].startswith("#"):
             continue

@@ -185,6 +185,50 @@ def test_metric_output_errors(capsys, pair, tmp_path):
     _assert_one_line_error(code, err, "depth format")
 
 
+def test_output_over_an_input_image_is_refused(capsys, pair, tmp_path):
+    # -o naming the left image (directly, through '..' or a link) used to overwrite it with the map.
+    left, right = shutil.copy(pair[0], tmp_path / "l.png"), shutil.copy(pair[1], tmp_path / "r.png")
+    (tmp_path / "link.png").symlink_to(left)
+    kept = Path(left).read_bytes(), Path(right).read_bytes()
+    targets = ((left, left), (tmp_path / "sub" / ".." / "r.png", right), (tmp_path / "link.png", left))
+    for target, image in targets:
+        code, _, err = _run(capsys, str(left), str(right), "-o", str(target), "--model", str(SHIPPED))
+        _assert_one_line_error(code, err, "-o", "input image", str(image), "destroy the input")
+    code, _, err = _run(capsys, str(left), str(right), "-o", str(tmp_path / "d.png"), "--validity",
+                        str(right), "--model", str(SHIPPED))
+    _assert_one_line_error(code, err, "--validity", "input image")
+    assert (Path(left).read_bytes(), Path(right).read_bytes()) == kept
+    # in a batch the pair fails alone, and its images stay as they were
+    rig = tmp_path / "rig"
+    (rig / "left").mkdir(parents=True)
+    (rig / "right").mkdir()
+    shutil.copy(left, rig / "left" / "a.png")
+    shutil.copy(right, rig / "right" / "a.png")
+    code, _, err = _run(capsys, "--data", str(rig), "-o", str(rig / "left" / "{name}.png"), "--model",
+                        str(SHIPPED), "--max-disparity", "16")
+    assert code == 1 and "adsm: error: a: -o" in err and "input image" in err, err
+    assert (rig / "left" / "a.png").read_bytes() == kept[0]
+
+
+@pytest.mark.parametrize("flag", ["--validity", "--confidence"])
+def test_two_outputs_in_one_file_are_refused(capsys, pair, tmp_path, flag):
+    # The map written second used to replace the disparity map silently.
+    out = tmp_path / "d.npy"
+    code, _, err = _run(capsys, *map(str, pair), "-o", str(out), flag, str(tmp_path / "." / "d.npy"),
+                        "--model", str(SHIPPED))
+    _assert_one_line_error(code, err, "-o and " + flag, "same file")
+    assert not out.exists()
+
+
+def test_unusable_out_dir_and_pair_list(capsys, pair, tmp_path):
+    code, _, err = _run(capsys, "--pairs", str(pair[0]), "--out-dir", str(tmp_path / "o"))
+    _assert_one_line_error(code, err, "--pairs", "left.png", "not a UTF-8 text file")
+    listing = tmp_path / "pairs.txt"
+    listing.write_text(f"{pair[0]} {pair[1]}\n")
+    code, _, err = _run(capsys, "--pairs", str(listing), "--out-dir", str(pair[0]))
+    _assert_one_line_error(code, err, "--out-dir", "is a file, not a folder")
+
+
 def test_many_pairs_one_process(capsys, pair, tmp_path):
     rig = tmp_path / "rig"
     (rig / "left").mkdir(parents=True)
