@@ -266,6 +266,9 @@ async def _read_pair(request: Request, *, calib: bool) -> tuple[bytes, bytes, Ca
                 f"unexpected multipart field '{unexpected[0]}'; send only the files 'left' and "
                 f"'right'{optional}"
             )
+        # A part given twice is refused too: one of the two would be used and the other silently ignored.
+        if repeated := sorted(name for name in form if len(form.getlist(name)) > 1):
+            raise BadRequest(f"multipart field '{repeated[0]}' is given more than once; send it once")
         parts: dict[str, bytes] = {}
         for name in allowed:
             part = form.get(name)

@@ -1,6 +1,9 @@
 """Count and time every HTTP response into :class:`~service.api.metrics.ServiceMetrics`.
 
-Labels never carry request data: the route is the matched path template, never the raw path.
+Labels never carry request data: the route is the matched path template, never the raw path, and the
+method is one of HTTP's own (RFC 9110), any other token a client sends being counted as ``other`` (each
+new label set is a series kept for the process's life: a client inventing methods, each up to the request
+line's length, made /metrics grow without bound).
 """
 
 from __future__ import annotations
@@ -10,6 +13,9 @@ import time
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.api.metrics import ServiceMetrics
+
+# RFC 9110 section 9 and PATCH (RFC 5789): the methods a label may name.
+METHODS = frozenset({"GET", "HEAD", "POST", "PUT", "DELETE", "CONNECT", "OPTIONS", "TRACE", "PATCH"})
 
 
 class MetricsMiddleware:
@@ -37,7 +43,7 @@ class MetricsMiddleware:
         finally:
             route = scope.get("route")
             labels = {
-                "method": scope["method"],
+                "method": scope["method"] if scope["method"] in METHODS else "other",
                 "route": getattr(route, "path", None) or "unmatched",
                 "status": str(status),
             }

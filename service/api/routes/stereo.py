@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
@@ -58,8 +59,9 @@ def reject_unknown_query(request: Request) -> None:
         raise HTTPException(
             400, f"unknown query parameter '{unknown[0]}'; this route takes {', '.join(sorted(known))}"
         )
-    names = [name for name, _ in request.query_params.multi_items()]
-    if repeated := sorted({name for name in names if names.count(name) > 1}):
+    # Counted in one pass: a query of thousands of repeats (names.count per name) cost seconds of CPU.
+    counts = Counter(name for name, _ in request.query_params.multi_items())
+    if repeated := sorted(name for name, count in counts.items() if count > 1):
         raise HTTPException(400, f"query parameter '{repeated[0]}' is given more than once; give it once")
 
 

@@ -200,6 +200,9 @@ CATALOG = [
          files={"left": PAIR["left"], "right": (None, "right.png")}),
     Case("extra text field", 400, ("unexpected multipart field 'comment'",),
          files={**PAIR, "comment": (None, "hello")}),
+    Case("left twice", 400, ("'left' is given more than once",),
+         files=[("left", PAIR["left"]), ("left", ("junk.png", b"junk", "image/png")),
+                ("right", PAIR["right"])]),
     Case("extra file", 400, ("files",), files={**PAIR, "third": ("third.png", encode(LEFT), "image/png")}),
     # --- not an image, or not one we decode -----------------------------------------------------------------
     Case("zero-byte left", 415, ("left", "empty"), files=files(b"", encode(RIGHT))),

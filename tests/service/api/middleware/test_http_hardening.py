@@ -22,7 +22,7 @@ from PIL import Image
 
 from service.api import Settings, create_app
 from service.api.middleware.delivery import CHUNK_BYTES, AnswerDelivery, Unsent
-from tests.helpers import ROOT, TINY_PAIR, InstantMatcher, disparity_scope
+from tests.helpers import ROOT, TINY_PAIR, InstantMatcher, disparity_scope, ready_client
 
 pytestmark = [pytest.mark.anyio, pytest.mark.parametrize("anyio_backend", ["asyncio"])]
 
@@ -242,3 +242,41 @@ def test_clients_that_never_read_answers_pin_nothing_past_the_write_timeout(big_
     assert held < 160 and after < 160, (held, after)
     assert httpx.post(request.url, files={"left": ("l.png", png), "right": ("r.png", png)},
                       timeout=60).status_code == 200
+
+
+async def test_invented_methods_share_one_metrics_label(anyio_backend: str) -> None:
+    # Each method token became its own series, kept for the process's life: requests with invented methods
+    # (each up to the request line's length) made /metrics, and the memory behind it, grow without bound.
+    app = create_app(Settings(), matcher=InstantMatcher())
+    async with ready_client(app) as client:
+        for index in range(20):
+            assert (await client.request(f"X{index:02d}{'M' * 2000}", "/")).status_code == 405
+        assert (await client.request("PUT", "/")).status_code == 405
+        metrics = (await client.get("/metrics")).text
+    assert 'adsm_http_requests_total{method="other",route="/",status="405"} 20.0' in metrics
+    assert 'adsm_http_requests_total{method="PUT",route="/",status="405"} 1.0' in metrics
+    assert "MMMM" not in metrics and len(metrics) < 200_000
+
+
+async def test_thousands_of_repeated_query_parameters_are_refused_at_once(anyio_backend: str) -> None:
+    # The repeat check counted each name over the whole list: 40 000 repeats took about 10 s of CPU. Driven
+    # by hand: httpx refuses URLs over 64 KiB, a server takes longer ones.
+    app = create_app(Settings(), matcher=InstantMatcher())
+    scope = disparity_scope(b"", "multipart/form-data; boundary=b")
+    scope["query_string"] = "&".join(["p1=1"] * 40_000).encode()
+    sent: list[dict] = []
+
+    async def receive() -> dict:
+        return {"type": "http.request", "body": b"", "more_body": False}
+
+    async def send(message: dict) -> None:
+        sent.append(message)
+
+    async with app.router.lifespan_context(app):
+        await _started(app)
+        started = time.perf_counter()
+        await app(scope, receive, send)
+        elapsed = time.perf_counter() - started
+    assert sent[0]["status"] == 400 and b"'p1' is given more than once" in sent[1]["body"]
+    assert elapsed < 4, elapsed
+    assert app.state.inference.matcher.calls == 0
