@@ -47,6 +47,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    report_path = _report_path(args.json)  # before the evaluation: a bad path would lose the whole run
     dataset = open_dataset(args.data)
     # Imported here so that `adsm --help` does not pay for Numba and ONNX Runtime.
     from service.evaluation.evaluate import evaluate
@@ -67,9 +68,22 @@ def run(args: argparse.Namespace) -> int:
         print()
         return 0
     print(format_table(report))
-    if args.json is not None:
-        Path(args.json).write_text(json.dumps(report, indent=2) + "\n")
+    if report_path is not None:
+        report_path.write_text(json.dumps(report, indent=2) + "\n")
     return 0
+
+
+def _report_path(text: str | None) -> Path | None:
+    """The file of ``--json`` (None: no file, or ``-`` for stdout), refused when it cannot be written: the
+    report is written once every pair is evaluated, which on a large dataset is hours later."""
+    if text is None or text == "-":
+        return None
+    path = Path(text)
+    if path.is_dir():
+        raise ValueError(f"--json {text!r} is a folder; name the report's file")
+    if not path.parent.is_dir():
+        raise ValueError(f"--json {text!r}: the folder {str(path.parent)!r} does not exist")
+    return path
 
 
 def format_table(report: dict[str, Any]) -> str:
