@@ -157,8 +157,8 @@ def run(args: argparse.Namespace) -> int:
         from service.calibration import read_calibration
 
         header_size = first_size
-        if header_size is None and isinstance(pairs, list) and pairs and pairs[0].left.is_file():
-            header_size = checks.image_size_of(pairs[0].left, "left")
+        if header_size is None and isinstance(pairs, list):
+            header_size = _first_readable_size(pairs)
         calibration = read_calibration(args.calib, image_size=header_size, units=args.calib_units,
                                        rectified=args.rectified)
 
@@ -185,3 +185,14 @@ def run(args: argparse.Namespace) -> int:
         runner.one(pairs[0])
         return 0
     return runner.many(runner.file_items(pairs), len(pairs), started)
+
+
+def _first_readable_size(pairs: list[sources.Pair]) -> tuple[int, int] | None:
+    """(height, width) of the first left image whose header reads, for a calibration that needs the image
+    size; None when none does. An unreadable image fails its own pair in its turn, not the whole batch."""
+    for pair in pairs:
+        try:
+            return checks.image_size_of(pair.left, "left")
+        except (OSError, ValueError):
+            continue
+    return None

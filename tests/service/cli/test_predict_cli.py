@@ -185,6 +185,26 @@ def test_metric_output_errors(capsys, pair, tmp_path):
     _assert_one_line_error(code, err, "depth format")
 
 
+def test_unreadable_first_pair_fails_alone_with_a_calibration(capsys, pair, tmp_path):
+    # With --calib the first left image's header was read for the calibration's image size, outside the
+    # per-pair handling: an unreadable first pair ended the whole batch and no pair was written.
+    rig = tmp_path / "rig"
+    (rig / "left").mkdir(parents=True)
+    (rig / "right").mkdir()
+    (rig / "left" / "a.png").write_bytes(b"not an image")
+    (rig / "right" / "a.png").write_bytes(b"not an image")
+    shutil.copy(pair[0], rig / "left" / "b.png")
+    shutil.copy(pair[1], rig / "right" / "b.png")
+    (tmp_path / "calib.txt").write_text(CALIB)
+    out = tmp_path / "out"
+    code, _, err = _run(capsys, "--data", str(rig), "--out-dir", str(out), "--calib",
+                        str(tmp_path / "calib.txt"), "--depth", str(out / "{name}-z.npy"),
+                        "--max-disparity", "16", "--model", str(SHIPPED))
+    assert code == 1 and "adsm: error: a: left image" in err, err
+    assert "1 pairs written, 0 skipped, 1 failed" in err.strip().splitlines()[-1]
+    assert sorted(path.name for path in out.iterdir()) == ["b-z.npy", "b.png"]
+
+
 def test_output_over_an_input_image_is_refused(capsys, pair, tmp_path):
     # -o naming the left image (directly, through '..' or a link) used to overwrite it with the map.
     left, right = shutil.copy(pair[0], tmp_path / "l.png"), shutil.copy(pair[1], tmp_path / "r.png")
