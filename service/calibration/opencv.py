@@ -21,6 +21,10 @@ XML, JSON, gzip), and its ``stereoRectify`` is the definition the files were mad
 
 from __future__ import annotations
 
+import gzip
+import io
+import re
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +35,14 @@ from service.calibration.errors import CalibrationError
 from service.calibration.model import Rectification, StereoCalibration
 
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+# OpenCV's parsers recurse once per nesting level and overflow the stack (a segfault that takes the whole
+# process down) at 10^4-10^5 levels; a calibration file nests 3 (root, matrix, data), so 64 is generous.
+MAX_NESTING = 64
+_XML_TAG = re.compile(rb"</|/>|<[A-Za-z_]")
+# One YAML line opens a level per leading space, per sequence item ("- ") and per mapping key ("a: "):
+# "a: a: a: ... 1" and "- - - ... 1" recurse as deep as nested brackets do.
+_YAML_LINE = re.compile(rb"^([ \t]*)(.*)$", re.MULTILINE)
+_YAML_OPENERS = re.compile(rb"-[ \t]|:(?:[ \t]|$)")
 SUFFIXES = (".yml", ".yaml", ".xml", ".json", ".gz")
 _ALIASES = {
     "K1": ("K1", "M1", "cameraMatrix1", "camera_matrix_1"),
@@ -128,6 +140,10 @@ def _read_nodes(path: Path, source: str) -> dict[str, np.ndarray]:
         raise CalibrationError(f"calibration file {str(path)!r} does not exist or is not a file")
     if path.stat().st_size > MAX_CALIBRATION_BYTES:
         raise CalibrationError(f"{source}: {path.stat().st_size} bytes is too large for a calibration file")
+    depth = _nesting_depth(_content(path, source))
+    if depth > MAX_NESTING:
+        raise CalibrationError(f"{source}: nested {depth} levels deep; a calibration file needs a few "
+                               f"(at most {MAX_NESTING})")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as error:  # parse errors surface as either
@@ -137,8 +153,12 @@ def _read_nodes(path: Path, source: str) -> dict[str, np.ndarray]:
     try:
         if not storage.isOpened():
             raise CalibrationError(f"{source}: not a readable OpenCV file")
+        root = storage.root()
+        if not root.isMap():  # keys() of a sequence or scalar raises a cv2.error
+            raise CalibrationError(f"{source}: the top level must name its nodes (P1: ..., P2: ...), "
+                                   "not be a list or a value")
         nodes: dict[str, np.ndarray] = {}
-        for key in storage.root().keys():  # noqa: SIM118 (a cv2.FileNode, not a dict)
+        for key in root.keys():  # noqa: SIM118 (a cv2.FileNode, not a dict)
             node = storage.getNode(key)
             value = None
             if node.isMap():
@@ -150,6 +170,47 @@ def _read_nodes(path: Path, source: str) -> dict[str, np.ndarray]:
         return nodes
     finally:
         storage.release()
+
+
+def _content(path: Path, source: str) -> bytes:
+    """The bytes OpenCV will parse: the file's, decompressed for ``.gz`` (at most the size cap, so a
+    small archive cannot unpack into an unbounded document)."""
+    data = path.read_bytes()
+    if path.suffix.lower() != ".gz":
+        return data
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(data)) as stream:
+            text = stream.read(MAX_CALIBRATION_BYTES + 1)
+    except (OSError, EOFError, zlib.error) as error:
+        raise CalibrationError(f"{source}: not a readable gzip file ({error})") from None
+    if len(text) > MAX_CALIBRATION_BYTES:
+        raise CalibrationError(f"{source}: unpacks to more than {MAX_CALIBRATION_BYTES} bytes, too large "
+                               "for a calibration file")
+    return text
+
+
+def _nesting_depth(data: bytes) -> int:
+    """An upper estimate of the document's nesting: the deepest of its bracket ([ {) depth, XML element
+    depth and, unless it is JSON or XML, YAML line depth (indentation plus a line's ``- `` items and
+    ``key:`` separators)."""
+    codes = np.frombuffer(data, np.uint8)
+    steps = (np.isin(codes, (ord("["), ord("{"))).astype(np.int64)
+             - np.isin(codes, (ord("]"), ord("}"))).astype(np.int64))
+    tags = np.array([-1 if tag in (b"</", b"/>") else 1 for tag in _XML_TAG.findall(data)], np.int64)
+    deepest = max(_walk_depth(steps), _walk_depth(tags))
+    if not data.lstrip().startswith((b"{", b"[", b"<")):
+        for indent, rest in _YAML_LINE.findall(data):
+            deepest = max(deepest, len(indent) + len(_YAML_OPENERS.findall(rest)))
+    return deepest
+
+
+def _walk_depth(steps: np.ndarray) -> int:
+    """Deepest level of a +1/-1 walk that cannot go below 0 (a stray closer is not a negative depth)."""
+    if steps.size == 0:
+        return 0
+    level = np.cumsum(steps)
+    floor = np.minimum.accumulate(np.minimum(level, 0))
+    return int((level - floor).max())
 
 
 def _sequence(node: Any) -> np.ndarray | None:  # a cv2.FileNode

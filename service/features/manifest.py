@@ -63,6 +63,8 @@ def load_manifest(folder: str | Path) -> dict[str, Any]:
         text = path.read_text(encoding="utf-8")
     except OSError as error:
         raise ModelError(f"cannot read {path}: {error.strerror or error}") from error
+    except UnicodeDecodeError as error:
+        raise ModelError(f"{path} is not UTF-8 text ({error.reason} at byte {error.start})") from error
     try:
         manifest = json.loads(text)
     except json.JSONDecodeError as error:

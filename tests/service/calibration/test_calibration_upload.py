@@ -70,6 +70,17 @@ def test_opencv_by_suffix_and_by_header(tmp_path: Path) -> None:
         (b"{\"Q\": [1, 2, 3]}", "q.json", "q.json (OpenCV)"),
         (MIDDLEBURY.replace("baseline=193.001", "baseline=-193").encode(), "c.txt", "swapped"),
         (MIDDLEBURY.replace("height=1988", "height=1e400").encode(), "c.txt", "non-finite"),
+        # A top level that is a list or a value: OpenCV's keys() raised a cv2.error (an HTTP 500).
+        (b"[1]", "rig.json", "rig.json (OpenCV): the top level must name its nodes"),
+        (b"%YAML:1.0\n- 1\n", "rig.yml", "rig.yml (OpenCV): the top level must name its nodes"),
+        # Deep nesting overflowed OpenCV's recursive parsers: a segfault that ended the server process.
+        (b"[" * 100_000 + b"]" * 100_000, "rig.json", "rig.json (OpenCV): nested 100000 levels deep"),
+        (b"%YAML:1.0\nP1: " + b"- " * 100_000 + b"1\n", "rig.yml", "levels deep"),
+        (b"%YAML:1.0\n" + b"a: " * 100_000 + b"1\n", "rig.yml", "levels deep"),
+        (b"<?xml version='1.0'?><opencv_storage>" + b"<a>" * 100_000 + b"</a>" * 100_000
+         + b"</opencv_storage>", "rig.xml", "levels deep"),
+        (gzip.compress(b"%YAML:1.0\nP1: " + b"- " * 100_000 + b"1\n"), "rig.yml.gz", "levels deep"),
+        (gzip.compress(b"%YAML:1.0\nP1: [" + b"1, " * 400_000 + b"1]\n"), "rig.yml.gz", "unpacks to more"),
     ],
 )
 def test_bad_uploads_are_one_line(data: bytes, filename: str | None, fragment: str) -> None:

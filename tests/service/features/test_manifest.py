@@ -153,6 +153,13 @@ def test_load_errors_are_clear(tmp_path, content, match):
         load_manifest(tmp_path)
 
 
+def test_load_of_non_utf8_bytes_names_the_manifest(tmp_path):
+    # A bare UnicodeDecodeError escaped before: 'adsm: error: 'utf-8' codec can't decode byte 0xff ...'
+    (tmp_path / "manifest.json").write_bytes(b'{"name": "\xff\xfe"}')
+    with pytest.raises(ModelError, match=r"manifest\.json is not UTF-8 text"):
+        load_manifest(tmp_path)
+
+
 def test_load_missing_folder(tmp_path):
     with pytest.raises(ModelError, match="does not exist"):
         load_manifest(tmp_path / "nowhere")
