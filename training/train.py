@@ -81,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
     parser.add_argument("--init-from", metavar="CKPT",
-                        help="start from these weights (same config; more channels are filled in), with a "
+                        help="start from these weights: a checkpoint, or a shipped fp32 model folder such as "
+                             "service/models/adsm-rf11 (same config; more channels are filled in), with a "
                              "fresh optimizer and schedule")
     parser.add_argument("--stop-after", type=int, metavar="STEP",
                         help="stop after this step (checkpoint written) without changing the schedule of "

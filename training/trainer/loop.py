@@ -9,6 +9,7 @@ file exactly where the interrupted run would have.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import time
@@ -26,6 +27,7 @@ from service.features.defaults import RUNTIME_DEFAULTS
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.data.evaluation_only import CONES_NAME, CONES_SPEC
 from training.evaluation import runtime_metrics
+from training.model_folder import load_start
 from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
 from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
@@ -214,11 +216,17 @@ def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: 
                         training=training, config=recorded, deploy=deploy)
 
 
+@functools.lru_cache(maxsize=4)
+def _start_provenance(init_from: str) -> dict[str, Any]:
+    # Read once per run: rebuilding a model folder's towers (training.model_folder) takes seconds.
+    return load_start(init_from).training or {}
+
+
 def warm_start_provenance(init_from: str, wall: float) -> dict[str, Any]:
     """What a warm-started model owes to its starting checkpoint: the chain of commands, the total time."""
-    earlier = load_checkpoint(init_from).training or {}
-    previous = {key: earlier[key] for key in ("command", "data", "wall_time_s", "iterations", "warm_start")
-                if key in earlier}
+    earlier = _start_provenance(init_from)
+    previous = {key: earlier[key] for key in ("command", "data", "wall_time_s", "iterations", "warm_start",
+                                              "model_folder") if key in earlier}
     total = wall + float(earlier.get("wall_time_total_s", earlier.get("wall_time_s", 0.0)))
     return {"warm_start": {"checkpoint": init_from, **previous}, "wall_time_total_s": round(total, 1)}
 

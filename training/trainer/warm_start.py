@@ -1,5 +1,7 @@
 """Warm start: initialise a model from a checkpoint's weights, widening channels where the model is wider.
 
+The weights come from a checkpoint file or from a shipped fp32 model folder (``training.model_folder``).
+
 Same shapes are copied. A wider layer (more channels, same kernel) gets the old weights in its first
 slots and small random values elsewhere; new BN channels get a small scale, so the wider network starts
 close to the narrow one's function (as Net2Net's function-preserving widening) but the new channels can
@@ -12,15 +14,16 @@ from __future__ import annotations
 
 import torch
 
-from training.checkpoint import load_checkpoint
+from training.model_folder import load_start
 from training.networks import TowerPair
 
 NEW_SCALE = 0.01   # new entries: this fraction of the old entries' spread
 
 
 def warm_start(model: TowerPair, checkpoint_path: str, *, generator: torch.Generator | None = None) -> None:
-    """Load the checkpoint's weights into ``model`` (same config and sharing; channels >= the saved)."""
-    checkpoint = load_checkpoint(checkpoint_path)
+    """Load the checkpoint's (or model folder's) weights into ``model`` (same config and sharing; channels
+    >= the saved)."""
+    checkpoint = load_start(checkpoint_path)
     for key in ("config", "shared"):
         mine = model.spec()[key]
         if checkpoint.spec[key] != mine:
