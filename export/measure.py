@@ -120,10 +120,15 @@ def measure_command(folder: str | Path, datasets: Mapping[str, str], *, write: b
     return shlex.join(argv + (["--write"] if write else []))
 
 
+README_FIGURES = ("bad2", "bad1", "bad3", "bad4", "bad5", "epe", "bad2_nonocc")  # the table's Cones columns
+
+
 def readme_row(metrics: Mapping[str, Any]) -> str:
-    """The README model table's figures for Cones: bad-2..5 %, EPE px, non-occluded bad-2 %."""
+    """The README model table's figures, in its column order: synthetic bad-2 % ("-" when not measured),
+    then Cones bad-2, bad-1, bad-3, bad-4, bad-5 %, EPE px, non-occluded bad-2 %."""
     cones = metrics[CONES]
-    cells = [f"{cones[key]:.2f}" for key in ("bad2", "bad3", "bad4", "bad5", "epe", "bad2_nonocc")]
+    synthetic = f"{metrics[SYNTHETIC]['bad2']:.2f}" if SYNTHETIC in metrics else "-"
+    cells = [synthetic] + [f"{cones[key]:.2f}" for key in README_FIGURES]
     return "| " + " | ".join(cells) + " |"
 
 
@@ -169,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
         metrics = measure_folder(args.model, datasets, command=command, threads=args.threads,
                                  log=lambda line: print(line, file=sys.stderr))
         print(json.dumps(metrics, indent=2))
-        print(f"README row figures (bad-2..5, EPE, non-occl. bad-2): {readme_row(metrics)}", file=sys.stderr)
+        print(f"README row figures (synthetic bad-2; Cones bad-2, bad-1, bad-3..5, EPE, non-occl. bad-2): "
+              f"{readme_row(metrics)}", file=sys.stderr)
         if args.write:
             print(f"wrote {write_metrics(args.model, metrics)}", file=sys.stderr)
     except (OSError, ValueError, ModelError) as error:

@@ -27,7 +27,7 @@ from service.evaluation.sparsification import format_sparsification
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "eval", help="measure a model's bad-N, EPE, D1 and speed on a dataset",
-        description="Measure a model on a dataset with ground truth: bad-1..5 %%, EPE, D1, density and "
+        description="Measure a model on a dataset with ground truth: bad-1..5 %, EPE, D1, density and "
                     "seconds per pair, over every ground-truth pixel (dense output).",
     )
     add = parser.add_argument
