@@ -14,9 +14,9 @@ in its conv (a deconv's flipped and transposed back) and picks each BN so that
 The learned softmax temperature is not part of the ONNX graph; it is fitted again on the same crops (the
 lowest matching loss over a log grid), so the first steps do not spend themselves rescaling the logits.
 
->>> checkpoint = checkpoint_from_folder("service/models/adsm-rf11")   # doctest: +SKIP
->>> checkpoint.spec["config"], checkpoint.spec["channels"]             # doctest: +SKIP
-('11-5conv', 32)
+>>> checkpoint = checkpoint_from_folder(Path(__file__).parents[1] / "service" / "models" / "adsm-rf11")
+>>> checkpoint.spec["config"], checkpoint.spec["channels"], checkpoint.training["model_folder"]["name"]
+('11-5conv', 32, 'adsm-rf11')
 """
 
 from __future__ import annotations
