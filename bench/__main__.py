@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import importlib
 import pkgutil
+import statistics
 import sys
 from pathlib import Path
 
@@ -40,9 +41,16 @@ def main(argv: list[str]) -> int:
         print(f"bench: error: unknown benchmark {name!r}; have {known}", file=sys.stderr)
         return 2
     from service import jit
+    from service.features.manifest import ModelError
 
     jit.configure_cache()  # as `adsm` does when it starts
-    return int(importlib.import_module(f"bench.{name}").main(argv[1:]) or 0)
+    try:
+        return int(importlib.import_module(f"bench.{name}").main(argv[1:]) or 0)
+    except (OSError, ValueError, RuntimeError, ModelError, statistics.StatisticsError) as error:
+        # A bad argument or file (a missing model folder, synthetic:0, an unreadable pair, --repeats 0):
+        # one line, as every tool of the project, not a traceback.
+        print(f"bench {name}: error: {type(error).__name__}: {error}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

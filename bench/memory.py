@@ -116,6 +116,8 @@ def _shape(text: str) -> tuple[int, int, int]:
         parts.append(0)
     if len(parts) != 3:
         raise argparse.ArgumentTypeError(f"expected H,W or H,W,D, got {text!r}")
+    if min(parts[:2]) < 1 or parts[2] < 0:
+        raise argparse.ArgumentTypeError(f"H and W must be >= 1 and D >= 0 (0: the default), got {text!r}")
     return parts[0], parts[1], parts[2]
 
 

@@ -28,6 +28,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", type=int, default=20)
     parser.add_argument("--json", type=Path, metavar="OUT")
     args = parser.parse_args(argv)
+    if args.pairs < 1:
+        parser.error(f"--pairs must be >= 1, got {args.pairs}")
     config = SyntheticConfig(height=args.size[0], width=args.size[1], max_disparity=args.max_disparity)
     generate(0, config)
     seconds = []

@@ -27,8 +27,9 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from export.folder import write_folder
 from service.features.defaults import RUNTIME_DEFAULTS
-from service.features.manifest import SCHEMA_ID, TOWER_FILES, write_manifest
+from service.features.manifest import SCHEMA_ID, TOWER_FILES, ModelError
 
 OPSET = 17
 GREY = (0.299, 0.587, 0.114)
@@ -38,14 +39,15 @@ GREY = (0.299, 0.587, 0.114)
 NORM_EPS = 1e-6
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
 DEFAULT_WINDOW = 9
+MAX_WINDOW = 63  # w^2 = 3969 feature channels per pixel; a larger window only exhausts memory
 SGM_P1 = 65.0
 SGM_P2 = 360.0
 
 
 def build_tower(window: int, *, side: str) -> onnx.ModelProto:
     """One NCC tower as an ONNX model: input ``image`` [1, 3, H, W] -> ``features`` [1, w*w, H, W]."""
-    if window < 1 or window % 2 == 0:
-        raise ValueError(f"window must be an odd positive size, got {window}")
+    if window < 1 or window % 2 == 0 or window > MAX_WINDOW:
+        raise ValueError(f"window must be an odd positive size up to {MAX_WINDOW}, got {window}")
     radius = window // 2
     taps = window * window
     one_hot = np.eye(taps, dtype=np.float32).reshape(taps, 1, window, window)
@@ -137,14 +139,12 @@ def build_folder(
 ) -> Path:
     """Write left.onnx, right.onnx and manifest.json into ``out``; returns the manifest path."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for file_name in TOWER_FILES:
-        model = build_tower(window, side=file_name.removesuffix(".onnx"))
-        (out / file_name).write_bytes(model.SerializeToString(deterministic=True))
+    towers = {name: build_tower(window, side=name.removesuffix(".onnx")).SerializeToString(deterministic=True)
+              for name in TOWER_FILES}
     manifest = baseline_manifest(window=window, name=out.name, p1=p1, p2=p2, selection=selection)
     if metrics:
         manifest["metrics"] = metrics
-    return write_manifest(out, manifest)
+    return write_folder(out, towers, manifest)
 
 
 # The measurement that chose DEFAULT_WINDOW: synthetic pairs from the project's generator (seeds from
@@ -242,7 +242,7 @@ def main(argv: list[str] | None = None) -> int:
             metrics = evaluate(args.out, args.evaluate)
             path = build_folder(args.out, window=window, p1=p1, p2=p2, selection=selection, metrics=metrics)
             print(json.dumps(metrics))
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, ModelError) as error:
         print(f"export.baseline: error: {error}", file=sys.stderr)
         return 1
     print(path)

@@ -36,8 +36,9 @@ import onnx
 from onnx import helper, numpy_helper
 
 from export.baseline import build_tower
+from export.folder import write_folder
 from export.tune import tune_folder
-from service.features.manifest import TOWER_FILES, ModelError, load_manifest, write_manifest
+from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
 
 FEATURES = "features"
 CORE_PREFIX = "core/"
@@ -172,8 +173,11 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
         raise ValueError("give the core as --window or as --core, not both")
     if core is None and window is None:
         window = 3
-    learned_manifest = load_manifest(learned)  # validated; the towers' hashes are checked on loading
+    learned_manifest = load_manifest(learned)
+    verify_files(learned, learned_manifest)  # a tampered or corrupted tower is refused, not combined
     core_manifest = None if core is None else load_manifest(core)
+    if core is not None:
+        verify_files(core, core_manifest)
     out = Path(out)
     if out.resolve() in {Path(learned).resolve(), *([] if core is None else [Path(core).resolve()])}:
         raise ValueError(f"--out {out} is one of the folders it reads: write the hybrid elsewhere")
@@ -181,12 +185,9 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
     for file_name in TOWER_FILES:
         side = file_name.removesuffix(".onnx")
         core_tower = (build_tower(window, side=side) if window is not None
-                      else onnx.load(Path(core) / file_name))
-        towers.append(combine_towers(onnx.load(Path(learned) / file_name), core_tower,
+                      else _load_graph(Path(core) / file_name))
+        towers.append(combine_towers(_load_graph(Path(learned) / file_name), core_tower,
                                      core_weight=core_weight, texture_energy=texture_energy))
-    out.mkdir(parents=True, exist_ok=True)
-    for file_name, tower in zip(TOWER_FILES, towers, strict=True):
-        (out / file_name).write_bytes(tower.SerializeToString(deterministic=True))
     sgm = learned_manifest["sgm"]
     chosen_p1, chosen_p2 = (sgm["p1"] if p1 is None else p1), (sgm["p2"] if p2 is None else p2)
     if tuned_on is None:
@@ -195,7 +196,16 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
     manifest = hybrid_manifest(learned_manifest, name=out.name, core_weight=core_weight, window=window,
                                core=core_manifest, texture_energy=texture_energy, p1=chosen_p1,
                                p2=chosen_p2, tuned_on=tuned_on, command=command)
-    return write_manifest(out, manifest)
+    serialised = {name: tower.SerializeToString(deterministic=True)
+                  for name, tower in zip(TOWER_FILES, towers, strict=True)}
+    return write_folder(out, serialised, manifest)
+
+
+def _load_graph(path: Path) -> onnx.ModelProto:
+    try:
+        return onnx.load(path)
+    except Exception as error:  # protobuf's DecodeError and friends
+        raise ValueError(f"{path} is not a readable ONNX graph ({error})") from None
 
 
 def _scalar(value: float) -> np.ndarray:

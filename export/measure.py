@@ -162,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     command = shlex.join(["python", "-m", "export.measure", *(sys.argv[1:] if argv is None else argv)])
     try:
+        if args.synthetic is not None and args.synthetic < 0:
+            raise ValueError(f"--synthetic must be >= 0, got {args.synthetic}")
         if not args.cones.is_dir():
             raise ValueError(f"no Cones folder at {args.cones} (--cones PATH)")
         manifest = load_manifest(args.model)
@@ -170,6 +172,9 @@ def main(argv: list[str] | None = None) -> int:
             name, equals, spec = item.partition("=")
             if not (name and equals and spec):
                 raise ValueError(f"--data wants NAME=SPEC, got {item!r}")
+            if name in (CONES, SYNTHETIC):  # its figures would be recorded as that data set's
+                raise ValueError(f"--data {item!r}: {name} is measured by --cones / --synthetic; "
+                                 "give this data set another NAME")
             datasets[name] = spec
         metrics = measure_folder(args.model, datasets, command=command, threads=args.threads,
                                  log=lambda line: print(line, file=sys.stderr))

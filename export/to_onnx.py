@@ -38,6 +38,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 
+from export.folder import write_folder
 from export.measure import (
     DEFAULT_CONES,
     DEFAULT_SYNTHETIC_PAIRS,
@@ -225,13 +226,12 @@ def export_folder(checkpoint_path: str | Path, out: str | Path, *, opset: int = 
     checkpoint = load_checkpoint(checkpoint_path)
     model = checkpoint.build_model()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for file_name, tower in zip(TOWER_FILES, (model.left, model.right), strict=True):
-        graph = tower_to_onnx(tower, opset=opset, name=f"adsm_{model.config.name}_{file_name[:-5]}")
-        (out / file_name).write_bytes(graph.SerializeToString(deterministic=True))
+    towers = {file_name: tower_to_onnx(tower, opset=opset, name=f"adsm_{model.config.name}_{file_name[:-5]}"
+                                       ).SerializeToString(deterministic=True)
+              for file_name, tower in zip(TOWER_FILES, (model.left, model.right), strict=True)}
     manifest = build_manifest(checkpoint, model, name=name or _folder_name(out), opset=opset,
                               command=command, checkpoint_path=str(checkpoint_path), overrides=overrides)
-    path = write_manifest(out, manifest)
+    path = write_folder(out, towers, manifest)  # validated before an existing folder is touched
     if datasets:
         manifest["metrics"] = measure_folder(out, datasets, command=measure_command(out, datasets),
                                              threads=threads, log=log)

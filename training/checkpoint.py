@@ -24,6 +24,8 @@ from training.networks import TowerPair, build_tower_pair
 FORMAT = "adsm-checkpoint/1"
 # Provenance keys the manifest schema requires once a model is trained (see manifest.schema.json).
 TRAINING_KEYS = ("command", "data", "wall_time_s", "iterations")
+# What save_checkpoint writes and load_checkpoint reads back.
+PAYLOAD_KEYS = ("spec", "model", "optimizer", "step", "metrics", "training", "config", "deploy", "rng")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -116,6 +118,20 @@ def save_checkpoint(path: str | os.PathLike[str], *, model: TowerPair, step: int
     return path
 
 
+def update_checkpoint(path: str | os.PathLike[str], *, metrics: Mapping[str, Any],
+                      deploy: Mapping[str, Any]) -> Path:
+    """Replace a checkpoint's ``metrics`` and ``deploy`` in place (atomically), keeping everything else:
+    weights, optimizer and RNG states (so ``--resume`` still continues it exactly), step, provenance."""
+    path = Path(path)
+    load_checkpoint(path)  # refuse anything that is not a complete checkpoint
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    payload["metrics"], payload["deploy"] = dict(metrics), dict(deploy)
+    temporary = path.with_name(path.name + ".tmp")
+    torch.save(payload, temporary)
+    os.replace(temporary, path)
+    return path
+
+
 def load_checkpoint(path: str | os.PathLike[str]) -> Checkpoint:
     """Read a checkpoint safely (``weights_only=True``); a clear error for anything else."""
     try:
@@ -127,6 +143,10 @@ def load_checkpoint(path: str | os.PathLike[str]) -> Checkpoint:
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
         raise ValueError(f"{path} is not an ADSM checkpoint (format {found!r}, expected {FORMAT!r})")
+    if missing := [key for key in PAYLOAD_KEYS if key not in payload]:
+        raise ValueError(f"{path} is not a complete ADSM checkpoint: it lacks {', '.join(missing)}")
+    if not isinstance(payload["spec"], dict) or not isinstance(payload["model"], dict):
+        raise ValueError(f"{path} is not a complete ADSM checkpoint: its spec or weights are not mappings")
     return Checkpoint(spec=payload["spec"], state_dict=payload["model"], step=payload["step"],
                       metrics=payload["metrics"], training=payload["training"], config=payload["config"],
                       deploy=payload["deploy"], optimizer=payload["optimizer"], rng=payload["rng"])

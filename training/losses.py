@@ -132,8 +132,8 @@ def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight:
     pixels where a wide receptive field fattens the foreground, which a plain mean under-weights (they
     are a few percent of a crop).
     """
-    if weight < 0:
-        raise ValueError(f"the depth-edge weight must be >= 0, got {weight}")
+    if not 0 <= weight < float("inf"):  # NaN too: it would make every loss NaN
+        raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {weight}")
     known = torch.isfinite(disparity)
     value = torch.where(known, disparity, torch.zeros_like(disparity))
     edge = torch.zeros_like(known)

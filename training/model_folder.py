@@ -75,7 +75,7 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
     if {key: manifest["input"].get(key) for key in TRAINER_INPUT} != TRAINER_INPUT:
         raise ValueError(f"{folder}: input normalisation {manifest['input']} is not the trainer's "
                          f"{TRAINER_INPUT}")
-    left_graph = onnx.load(str(folder / "left.onnx"))
+    left_graph = _load_graph(folder / "left.onnx")
     window = _standardize_window(left_graph)
     try:
         model = build_tower_pair(manifest["config"], channels=int(manifest["channels"]),
@@ -84,7 +84,7 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
         raise ValueError(f"{folder}: {name} is not an ADSM tower folder ({error})") from None
     _unfold(model.left, left_graph, folder / "left.onnx")
     if not model.shared:
-        _unfold(model.right, onnx.load(str(folder / "right.onnx")), folder / "right.onnx")
+        _unfold(model.right, _load_graph(folder / "right.onnx"), folder / "right.onnx")
     left, right, disparity = _calibration_crops()
     model.eval()
     with torch.no_grad():
@@ -98,6 +98,14 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
     return Checkpoint(spec=model.spec(), state_dict={k: v.clone() for k, v in model.state_dict().items()},
                       step=int(training.get("iterations", 0)), metrics=dict(manifest.get("metrics") or {}),
                       training=training, config={}, deploy={})
+
+
+def _load_graph(path: Path) -> onnx.ModelProto:
+    """An ONNX file, or a ValueError naming it (its sha256 may match a manifest and still not parse)."""
+    try:
+        return onnx.load(str(path))
+    except Exception as error:  # protobuf's DecodeError and friends
+        raise ValueError(f"{path} is not a readable ONNX graph ({error})") from None
 
 
 def _initializers(graph: onnx.ModelProto) -> dict[str, np.ndarray]:

@@ -14,10 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shlex
 import sys
 from pathlib import Path
+
+import torch
 
 from training.data.evaluation_only import CONES_SPEC
 from training.losses import LABELS
@@ -121,17 +124,47 @@ def resolve_resume(resume: str | None, out: str) -> str | None:
     return str(last) if last.exists() else None
 
 
+def argument_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the parsed arguments (one line), or None; checked before anything is written."""
+    for name, value in (("iterations", args.iterations), ("batch-size", args.batch_size),
+                        ("channels", args.channels), ("val-every", args.val_every),
+                        ("val-pairs", args.val_pairs), ("threads", args.threads),
+                        ("stop-after", args.stop_after)):
+        if value is not None and value < 1:
+            return f"--{name} must be >= 1, got {value}"
+    if args.workers < 0:
+        return f"--workers must be >= 0, got {args.workers}"
+    # (--edge-weight and --vignetting are checked where they are used, NaN included.)
+    floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
+              ("time-budget", args.time_budget, False))
+    for name, value, positive in floats:
+        if value is not None and not (math.isfinite(value) and (value > 0 if positive else value >= 0)):
+            return f"--{name} must be a finite number {'> 0' if positive else '>= 0'}, got {value}"
+    if args.data == "synthetic" and not 1 <= args.max_disparity < args.crop[1]:
+        return (f"--max-disparity must be in 1..{args.crop[1] - 1}, below the crop width (--crop H W): a "
+                f"disparity of the width or more has no match inside the crop; got {args.max_disparity}")
+    try:
+        device = torch.device(args.device)
+    except RuntimeError:
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
+        return f"--device must be cpu or cuda[:N], got {args.device!r}"
+    return None
+
+
+def _out_of_memory(error: RuntimeError) -> bool:
+    """torch reports an allocation that failed as a RuntimeError (CUDA: its OutOfMemoryError subclass)."""
+    text = str(error)
+    return isinstance(error, torch.OutOfMemoryError) or "can't allocate memory" in text or \
+        "out of memory" in text.lower()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     defaults = MODE_DEFAULTS[args.mode]
     command = recorded_command(sys.argv[1:] if argv is None else argv, args)
-    for name, value in (("iterations", args.iterations), ("batch-size", args.batch_size),
-                        ("channels", args.channels), ("val-every", args.val_every)):
-        if value is not None and value < 1:
-            print(f"training.train: error: --{name} must be >= 1, got {value}", file=sys.stderr)
-            return 2
-    if args.workers < 0:
-        print(f"training.train: error: --workers must be >= 0, got {args.workers}", file=sys.stderr)
+    if problem := argument_problem(args):
+        print(f"training.train: error: {problem}", file=sys.stderr)
         return 2
     if args.standardize_window and (args.standardize_window < 3 or args.standardize_window % 2 == 0):
         print(f"training.train: error: --standardize-window must be 0 or odd and >= 3, got "
@@ -155,6 +188,13 @@ def main(argv: list[str] | None = None) -> int:
         summary = train(config, resume=resolve_resume(args.resume, args.out))
     except (OSError, ValueError) as error:
         print(f"training.train: error: {error}", file=sys.stderr)
+        return 1
+    except (MemoryError, RuntimeError) as error:
+        if not isinstance(error, MemoryError) and not _out_of_memory(error):
+            raise
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        print(f"training.train: error: out of memory ({first}); use a smaller --batch-size, --crop or "
+              "--channels", file=sys.stderr)
         return 1
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports
         print(json.dumps({k: v for k, v in summary.items() if k != "metrics"}))

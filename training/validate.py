@@ -17,7 +17,7 @@ import torch
 
 from service.datasets import open_dataset
 from service.evaluation.tuning import P1_GRID, P2_GRID
-from training.checkpoint import load_checkpoint, save_checkpoint
+from training.checkpoint import load_checkpoint, update_checkpoint
 from training.data.evaluation_only import CONES_NAME, CONES_SPEC
 from training.evaluation import runtime_metrics, tune_sgm
 
@@ -33,11 +33,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args(argv)
+    for name, value in (("pairs", args.pairs), ("threads", args.threads)):
+        if value < 1:
+            print(f"training.validate: error: --{name} must be >= 1, got {value}", file=sys.stderr)
+            return 2
+    try:
+        return _validate(args)
+    except (OSError, ValueError, RuntimeError) as error:
+        print(f"training.validate: error: {error}", file=sys.stderr)
+        return 1
+
+
+def _validate(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     checkpoint = load_checkpoint(args.checkpoint)
-    model = checkpoint.build_model()
+    try:
+        model = checkpoint.build_model()
+    except (KeyError, RuntimeError) as error:
+        raise ValueError(f"{args.checkpoint}: its weights do not fit its own spec ({error})") from None
     deploy = checkpoint.deploy_settings()
     synthetic = open_dataset(f"synthetic:{args.pairs}")
+    cones = open_dataset(args.cones) if args.cones else None  # a bad SPEC fails before any measurement
     if args.tune:
         best, rows = tune_sgm(model, synthetic, deploy=deploy, p1_grid=args.p1, p2_grid=args.p2, log=print)
         grid = Path(f"{args.checkpoint}.sgm-grid.json")
@@ -46,16 +62,15 @@ def main(argv: list[str] | None = None) -> int:
                                            f"the synthetic validation split ({args.pairs} pairs)"}
     metrics = dict(checkpoint.metrics)
     metrics["synthetic-validation"] = runtime_metrics(model, synthetic, deploy=deploy)
-    if args.cones:
-        metrics[CONES_NAME] = runtime_metrics(model, open_dataset(args.cones), deploy=deploy)
+    if cones is not None:
+        metrics[CONES_NAME] = runtime_metrics(model, cones, deploy=deploy)
     print(json.dumps({"deploy": {k: deploy[k] for k in ("p1", "p2", "cost_scale")}, "metrics": metrics},
                      indent=1))
     if args.tune:
-        save_checkpoint(args.checkpoint, model=model, step=checkpoint.step, metrics=metrics,
-                        training=checkpoint.training, config=checkpoint.config, deploy=deploy, rng=False)
+        # Only deploy and metrics change: the optimizer and RNG states stay, so a tuned last.pt still resumes.
+        update_checkpoint(args.checkpoint, metrics=metrics, deploy=deploy)
         print(f"updated {args.checkpoint}")
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

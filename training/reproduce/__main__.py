@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from training.reproduce import kubernetes, report
-from training.reproduce.run import PROTOCOL_FILE, Execution, Protocol, run_config
+from training.reproduce.run import PROTOCOL_FILE, Execution, Protocol, run_config, training_command
 from training.reproduce.split import check_split, make_split
 from training.reproduce.tables import TABLES, get_table
 
@@ -135,6 +135,12 @@ def main(argv: list[str] | None = None) -> int:
         if value < 1:
             print(f"{prog}: error: --{name} must be >= 1, got {value}", file=sys.stderr)
             return 2
+    for name, value in (("gpus", args.gpus), ("cpus", args.cpus), ("memory-gib", args.memory_gib),
+                        ("parallelism", args.parallelism), ("threads", args.threads)):
+        if value is not None and value < (0 if name == "gpus" else 1):
+            print(f"{prog}: error: --{name} must be >= {0 if name == 'gpus' else 1}, got {value}",
+                  file=sys.stderr)
+            return 2
     protocol = protocol_of(args)
     if args.kubernetes_job:
         given = sys.argv[1:] if argv is None else argv
@@ -144,8 +150,12 @@ def main(argv: list[str] | None = None) -> int:
                                      claim=args.claim, mount=args.mount, gpus=args.gpus, cpus=args.cpus,
                                      memory_gib=args.memory_gib, parallelism=args.parallelism,
                                      command_line=command)
-        args.kubernetes_job.parent.mkdir(parents=True, exist_ok=True)
-        args.kubernetes_job.write_text(text)
+        try:
+            args.kubernetes_job.parent.mkdir(parents=True, exist_ok=True)
+            args.kubernetes_job.write_text(text)
+        except OSError as error:
+            print(f"{prog}: error: {error}", file=sys.stderr)
+            return 1
         print(f"wrote {args.kubernetes_job}: Indexed Job {kubernetes.job_name(table.number)}, "
               f"{len(configs)} pods (one per config)")
         return 0
@@ -172,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         execution = Execution(launcher=args.launcher, nproc_per_node=args.nproc_per_node, device=args.device,
                               workers=args.workers, threads=args.threads,
                               checkpoint_every=args.checkpoint_every)
+        for config in configs:  # a batch that cannot split fails here, before OUT records the protocol
+            training_command(protocol, execution, config, "synthetic", out / "runs" / config)
         out.mkdir(parents=True, exist_ok=True)
         split = make_split(args.data, out, seed=args.split_seed, synthetic_test_pairs=args.test_pairs)
         temporary = recorded.with_name(f".{recorded.name}.{os.getpid()}.tmp")

@@ -131,6 +131,9 @@ class TrainingData:
 
 def _refuse_evaluation_data(data: str) -> None:
     kind, _, argument = data.partition(":")
+    if kind == "synthetic":
+        raise ValueError(f"{data!r} is the synthetic validation split (best.pt is selected on it): train on "
+                         "'synthetic', the generator's training seeds")
     path = Path(argument or data)
     named = any(name in str(path.resolve()) for name in EVALUATION_ONLY)
     if kind == "cones" or named or (path.is_dir() and not argument and detect_kind(path) == "cones"):

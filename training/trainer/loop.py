@@ -111,10 +111,17 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)
     step, wall_before, best = 0, 0.0, None
+    if not resume and rank == 0 and (out / "last.pt").exists():
+        # A fresh start would truncate OUT/history.jsonl and overwrite the earlier run's checkpoints.
+        raise ValueError(f"{out} already holds a run ({out / 'last.pt'}): continue it with --resume "
+                         f"{out / 'last.pt'} (or --resume auto), or write to another --out")
+    validation = open_dataset(f"synthetic:{config.val_pairs}")
+    cones = open_dataset(config.cones) if config.cones and rank == 0 else None
     if config.init_from and not resume:
         warm_start(model, config.init_from)
     if resume:
         checkpoint = load_checkpoint(resume)
+        _check_resumable(checkpoint.spec, model.spec(), resume)
         model.load_state_dict(checkpoint.state_dict)
         if checkpoint.optimizer is None:
             raise ValueError(f"{resume} has no optimizer state: cannot resume exactly")
@@ -129,8 +136,6 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         _truncate_history(history, step)
-    validation = open_dataset(f"synthetic:{config.val_pairs}")
-    cones = open_dataset(config.cones) if config.cones and rank == 0 else None
     deploy = RUNTIME_DEFAULTS.deploy({"trained_range": data.trained_range})
 
     started = time.perf_counter()
@@ -185,6 +190,17 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     bar.close()
     wall = wall_before + time.perf_counter() - started
     return {"steps": step, "wall_time_s": wall, "best": best, "metrics": metrics}
+
+
+def _check_resumable(saved: dict[str, Any], mine: dict[str, Any], resume: str) -> None:
+    """A resumed run must build the very network the checkpoint holds (its weights load as they are)."""
+    keys = ("config", "channels", "shared", "standardize_window")
+    defaults = {"standardize_window": 0}  # checkpoints from before the option have none
+    differ = [f"{key} {saved.get(key, defaults.get(key))!r} (this run: {mine[key]!r})" for key in keys
+              if saved.get(key, defaults.get(key)) != mine[key]]
+    if differ:
+        raise ValueError(f"--resume {resume}: the checkpoint's network differs: {', '.join(differ)}; resume "
+                         "with its own options, or start from its weights with --init-from")
 
 
 def _out_of_time(config: TrainConfig, started: float, world: int) -> bool:

@@ -1,0 +1,80 @@
+"""Export and bench command lines: bad arguments and files give one line, and never break a folder."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from bench.__main__ import main as bench_main
+from export import baseline, hybrid, measure, to_onnx
+from service.features.manifest import MODELS_DIR, load_manifest, verify_files
+
+pytestmark = pytest.mark.torch
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], prog: str) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"{prog}: error" in err, err
+    return err
+
+
+def _digests(folder: Path) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in sorted(folder.iterdir())}
+
+
+def test_a_failed_export_leaves_an_existing_folder_intact(tmp_path, capsys):
+    import torch
+
+    from training.checkpoint import save_checkpoint
+    from training.networks import build_tower_pair
+
+    first = save_checkpoint(tmp_path / "a.pt", model=build_tower_pair("9-4conv", channels=4), step=0)
+    torch.manual_seed(1)
+    second = save_checkpoint(tmp_path / "b.pt", model=build_tower_pair("9-4conv", channels=4), step=0)
+    folder = tmp_path / "model"
+    assert to_onnx.main(["--checkpoint", str(first), "--out", str(folder), "--no-measure"]) == 0
+    before = _digests(folder)
+    argv = ["--checkpoint", str(second), "--out", str(folder), "--no-measure", "--p1", "nan"]
+    assert to_onnx.main(argv) == 1
+    _one_line_error(capsys, "export.to_onnx")
+    assert _digests(folder) == before  # the towers used to be replaced, the manifest not: a broken folder
+    verify_files(folder, load_manifest(folder))
+
+
+def test_baseline_bad_penalties_are_one_line_and_keep_the_folder(tmp_path, capsys):
+    folder = tmp_path / "ncc"
+    assert baseline.main(["--out", str(folder), "--window", "5"]) == 0
+    before = _digests(folder)
+    for argv in (["--p1", "nan"], ["--p2", "-1"], ["--window", "99999"]):
+        assert baseline.main(["--out", str(folder), "--window", "3", *argv]) == 1
+        _one_line_error(capsys, "export.baseline")
+    assert _digests(folder) == before
+
+
+def test_hybrid_refuses_a_tampered_learned_folder(tmp_path, capsys):
+    learned = tmp_path / "learned"
+    shutil.copytree(MODELS_DIR / "adsm-rf11", learned)
+    data = bytearray((learned / "right.onnx").read_bytes())
+    data[-1] ^= 1
+    (learned / "right.onnx").write_bytes(bytes(data))
+    assert hybrid.main(["--learned", str(learned), "--core-weight", "0.5", "--out", str(tmp_path / "h")]) == 1
+    assert "does not match its manifest" in _one_line_error(capsys, "export.hybrid")
+    assert not (tmp_path / "h").exists()
+
+
+def test_measure_refuses_data_under_a_reserved_name(tmp_path, capsys):
+    folder = tmp_path / "rf11"
+    shutil.copytree(MODELS_DIR / "adsm-rf11", folder)
+    for argv in (["--data", "middlebury2003-cones=synthetic:1"], ["--synthetic", "-1"]):
+        assert measure.main(["--model", str(folder), *argv]) == 1
+        _one_line_error(capsys, "export.measure")
+
+
+def test_bench_reports_bad_arguments_and_files_in_one_line(capsys):
+    assert bench_main(["weighted_median", "--model", "/nonexistent-model-folder"]) == 1
+    assert "does not exist" in _one_line_error(capsys, "bench weighted_median")
+    with pytest.raises(SystemExit):
+        bench_main(["synthetic", "--pairs", "0"])
+    assert "--pairs must be >= 1" in capsys.readouterr().err
