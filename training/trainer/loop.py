@@ -111,7 +111,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)
     step, wall_before, best = 0, 0.0, None
-    if not resume and rank == 0 and (out / "last.pt").exists():
+    if not resume and (out / "last.pt").exists():  # every rank: none may go on alone into DDP
         # A fresh start would truncate OUT/history.jsonl and overwrite the earlier run's checkpoints.
         raise ValueError(f"{out} already holds a run ({out / 'last.pt'}): continue it with --resume "
                          f"{out / 'last.pt'} (or --resume auto), or write to another --out")
