@@ -12,18 +12,33 @@ import torch
 
 from export.quantize import quantize_folder
 from export.to_onnx import export_folder
-from tests.export.test_export import PROVENANCE, _with_statistics
 from training.checkpoint import save_checkpoint
 from training.model_folder import checkpoint_from_folder, load_start
-from training.networks import build_tower_pair, dense_features
+from training.networks import TowerPair, build_tower_pair, dense_features
 from training.trainer.warm_start import warm_start
 
 pytestmark = pytest.mark.torch
 
+PROVENANCE = {"command": "python -m training.train --iterations 5", "data": "synthetic", "wall_time_s": 2.0,
+              "iterations": 5}
+
+
+def _random_statistics(pair: TowerPair) -> TowerPair:
+    """BN statistics and affine terms far from the identity, so that unfolding them is really tested."""
+    generator = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for module in pair.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.running_mean.normal_(0.0, 0.3, generator=generator)
+                module.running_var.uniform_(0.5, 2.0, generator=generator)
+                module.weight.uniform_(0.5, 1.5, generator=generator)
+                module.bias.uniform_(-0.2, 0.2, generator=generator)
+    return pair.eval()
+
 
 def _folder(tmp_path: Path, config: str, *, shared: bool, standardize_window: int = 0) -> tuple[Path, object]:
-    pair = _with_statistics(build_tower_pair(config, channels=5, shared=shared,
-                                             standardize_window=standardize_window))
+    pair = _random_statistics(build_tower_pair(config, channels=5, shared=shared,
+                                               standardize_window=standardize_window))
     checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=PROVENANCE,
                                  deploy={"trained_range": [0, 96]})
     return export_folder(checkpoint, tmp_path / "folder", command="test").parent, pair
