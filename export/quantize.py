@@ -21,6 +21,7 @@ from __future__ import annotations
 import glob
 import importlib.util
 import json
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -48,6 +49,9 @@ DEFAULT_CALIBRATION = "skimage:astronaut,chelsea,rocket,brick,gravel"
 HELD_OUT = "skimage:coffee"          # accuracy image, never part of the default calibration
 CALIBRATION_SHIFT = 8                # px between the two calibration views
 CROP = (192, 256)                    # calibration crop (H, W): large enough for the 45 px receptive fields
+# Smallest calibration view side: below ~8 px ONNX Runtime's calibrator fails inside (a traceback), and
+# views much smaller than a receptive field teach the activation ranges little.
+MIN_CALIBRATION_SIDE = 32
 SYNTHETIC_SEED = 900_000_000         # calibration pairs: below the synthetic validation seeds (1e9 on)
 CALIBRATION_HELP = (
     "calibration images for --int8: 'skimage' or 'skimage:NAME,NAME' (images shipped in scikit-image's "
@@ -96,7 +100,14 @@ def calibration_pairs(spec: str) -> list[tuple[str, np.ndarray, np.ndarray]]:
         config = SyntheticConfig(height=CROP[0], width=CROP[1], max_disparity=48)
         samples = [generate(SYNTHETIC_SEED + i, config) for i in range(int(count or 6))]
         return [(sample.name, sample.left, sample.right) for sample in samples]
-    return [(name, *stereo_views(image)) for name, image in calibration_images(spec)]
+    pairs = []
+    for name, image in calibration_images(spec):
+        if image.shape[0] < MIN_CALIBRATION_SIDE or image.shape[1] < MIN_CALIBRATION_SIDE + CALIBRATION_SHIFT:
+            least = f"{MIN_CALIBRATION_SIDE + CALIBRATION_SHIFT}x{MIN_CALIBRATION_SIDE}"
+            raise ValueError(f"calibration image {name!r} is {image.shape[1]}x{image.shape[0]} px; each "
+                             f"needs at least {least}")
+        pairs.append((name, *stereo_views(image)))
+    return pairs
 
 
 def stereo_views(image: np.ndarray, *, shift: int = CALIBRATION_SHIFT) -> tuple[np.ndarray, np.ndarray]:
@@ -149,20 +160,24 @@ def quantize_folder(fp32_folder: str | Path, out: str | Path, *, calibration: st
     held_out_name, held_out = calibration_images(HELD_OUT)[0]
     if any(name == held_out_name for name, _, _ in pairs):
         raise ValueError(f"{HELD_OUT} is the accuracy image; leave it out of the calibration set")
-    out.mkdir(parents=True, exist_ok=True)
-    for index, file_name in enumerate(TOWER_FILES):
-        views = [pair[1 + index] for pair in pairs]
-        with tempfile.TemporaryDirectory(prefix="adsm-quantize-") as scratch:
+    # Both towers are quantised into a scratch folder first: a failure on the second no longer leaves
+    # ``out`` with a new left tower beside an old right one (and an old manifest that matches neither).
+    with tempfile.TemporaryDirectory(prefix="adsm-quantize-") as scratch:
+        for index, file_name in enumerate(TOWER_FILES):
+            views = [pair[1 + index] for pair in pairs]
             # ONNX Runtime's recommended pre-pass: shape inference and graph clean-up before QDQ insertion.
-            prepared = Path(scratch) / file_name
+            prepared = Path(scratch) / f"prepared-{file_name}"
             quant_pre_process(str(fp32_folder / file_name), str(prepared))
-            quantize_static(prepared, out / file_name, _Views(views, manifest["input"]),
+            quantize_static(prepared, Path(scratch) / file_name, _Views(views, manifest["input"]),
                             quant_format=QuantFormat.QDQ, op_types_to_quantize=["Conv"], per_channel=True,
                             activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8,
                             calibrate_method=CalibrationMethod.MinMax,
                             nodes_to_exclude=[first_conv(prepared)])
-        onnx.checker.check_model(str(out / file_name), full_check=True)
-        log(f"quantized {file_name}: {len(views)} calibration views from {calibration}")
+            onnx.checker.check_model(str(Path(scratch) / file_name), full_check=True)
+            log(f"quantized {file_name}: {len(views)} calibration views from {calibration}")
+        out.mkdir(parents=True, exist_ok=True)
+        for file_name in TOWER_FILES:
+            shutil.copyfile(Path(scratch) / file_name, out / file_name)
     name = manifest["name"][:60] + "-int8"
     # Figures of the fp32 towers say nothing about these: metrics are measured below, on this folder.
     int8 = {**manifest, "name": name, "description": manifest.get("description", "") + "; int8 QDQ",

@@ -178,6 +178,10 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
             raise ValueError("the checkpoint records training but no deploy['trained_range']; pass "
                              "--trained-range LOW HIGH")
         trained_range = [0, 0]  # untrained: it has seen no disparity at all
+    low, high = (int(value) for value in trained_range)
+    if not 0 <= low <= high:
+        raise ValueError(f"the trained disparity range must be LOW HIGH with 0 <= LOW <= HIGH, got {low} "
+                         f"{high}")
     sgm: dict[str, Any] = {"p1": float(deploy["p1"]), "p2": float(deploy["p2"]), "paths": 4}
     paper = RUNTIME_DEFAULTS
     untuned = (f"not tuned: the paper's P1 = {paper.p1:g}, P2 = {paper.p2:g} at cost scale "

@@ -78,3 +78,49 @@ def test_bench_reports_bad_arguments_and_files_in_one_line(capsys):
     with pytest.raises(SystemExit):
         bench_main(["synthetic", "--pairs", "0"])
     assert "--pairs must be >= 1" in capsys.readouterr().err
+
+
+
+def test_int8_calibration_refuses_tiny_images_and_a_failure_leaves_no_half_folder(tmp_path, monkeypatch):
+    import numpy as np
+    from PIL import Image
+
+    import export.quantize as quantize
+
+    images = tmp_path / "calibration"
+    images.mkdir()
+    Image.fromarray(np.full((4, 4, 3), 128, np.uint8)).save(images / "tiny.png")
+    # A 4x4 calibration image failed inside ONNX Runtime's calibrator with a traceback.
+    with pytest.raises(ValueError, match=r"'tiny' is 4x4 px; each needs at least"):
+        quantize.quantize_folder(MODELS_DIR / "adsm-rf11", tmp_path / "int8", calibration=str(images))
+    assert not (tmp_path / "int8").exists()
+    # A calibrator failure on the second tower left a new left.onnx in an existing folder before.
+    out = tmp_path / "existing"
+    shutil.copytree(MODELS_DIR / "adsm-rf11-int8", out)
+    before = _digests(out)
+    real, calls = quantize.quantize_static, []
+
+    def fails_on_the_right_tower(*args, **kwargs):
+        calls.append(args[1])
+        if len(calls) == 2:
+            raise RuntimeError("calibrator failed")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(quantize, "quantize_static", fails_on_the_right_tower)
+    with pytest.raises(RuntimeError, match="calibrator failed"):
+        quantize.quantize_folder(MODELS_DIR / "adsm-rf11", out, calibration="skimage:brick", datasets={})
+    assert _digests(out) == before
+    verify_files(out, load_manifest(out))
+
+
+@pytest.mark.parametrize("trained_range", [["5", "1"], ["-5", "10"]])
+def test_a_reversed_or_negative_trained_range_is_refused(tmp_path, capsys, trained_range):
+    from training.checkpoint import save_checkpoint
+    from training.networks import build_tower_pair
+
+    checkpoint = save_checkpoint(tmp_path / "a.pt", model=build_tower_pair("9-4conv", channels=4), step=0)
+    argv = ["--checkpoint", str(checkpoint), "--out", str(tmp_path / "m"), "--no-measure",
+            "--trained-range", *trained_range]
+    assert to_onnx.main(argv) == 1
+    assert "0 <= LOW <= HIGH" in _one_line_error(capsys, "export.to_onnx")
+    assert not (tmp_path / "m").exists()
