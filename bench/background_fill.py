@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bench import positive_int
 from service.datasets import open_dataset
 from service.evaluation import count_errors
 from service.evaluation.breakdown import Breakdown
@@ -66,8 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench background_fill",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="service/models/adsm-fast-int8")
-    parser.add_argument("--pairs", type=int, default=20, help="synthetic validation pairs (default 20)")
-    parser.add_argument("--runs", type=int, nargs="+", default=[1, BACKGROUND_RUN, 4, 12], metavar="K",
+    parser.add_argument("--pairs", type=positive_int, default=20,
+                        help="synthetic validation pairs (default 20)")
+    parser.add_argument("--runs", type=positive_int, nargs="+", default=[1, BACKGROUND_RUN, 4, 12],
+                        metavar="K",
                         help="occlusion runs to compare (default: MC-CNN's 1, the shipped one, 4, 12)")
     parser.add_argument("--fractions", nargs="+", default=["1/2", "1/3", "1/4"], metavar="N/D",
                         help="mismatch fractions to compare (default: MC-CNN's 1/2, 1/3, 1/4)")

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from bench import positive_int
+
 STAGES = ("prepare", "towers", "cost_volume", "sgm", "disparity", "subpixel", "lr_check", "fill", "border")
 # A stand-in package that makes `import scipy` fail, for --serve-extra: the serve extra installs no SciPy,
 # and numba imports scipy.linalg (when present) at its first kernel load, looking for a BLAS.
@@ -87,10 +89,10 @@ def _summary(samples: list[dict[str, float]], keys: tuple[str, ...]) -> dict[str
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench first_call", description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5,
+    parser.add_argument("--repeats", type=positive_int, default=5,
                         help="one-off processes (and warm calls) per variant")
     parser.add_argument("--size", default="375x1242", help="HEIGHTxWIDTH of the synthetic pair (KITTI size)")
-    parser.add_argument("--max-disparity", type=int, default=192)
+    parser.add_argument("--max-disparity", type=positive_int, default=192)
     parser.add_argument("--compare", action="store_true", help="also run every one-off with ADSM_PREPARE=0")
     parser.add_argument("--serve-extra", action="store_true",
                         help="hide SciPy from the children, as a `pip install .[serve]` has none")

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from bench import positive_float, positive_int
 from bench.serving import free_port, multipart, png, wait_ready
 
 
@@ -139,15 +140,18 @@ def soak(base: str, process: psutil.Process, *, warmup: int, sequential: int, se
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench load", description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=60.0, help="seconds of concurrent load")
-    parser.add_argument("--clients", type=int, default=8)
-    parser.add_argument("--max-requests", type=int, default=20_000, help="cap on load requests in all")
-    parser.add_argument("--max-backoff", type=float, default=2.0, help="cap on a client's Retry-After wait")
+    parser.add_argument("--duration", type=positive_float, default=60.0, help="seconds of concurrent load")
+    parser.add_argument("--clients", type=positive_int, default=8)
+    parser.add_argument("--max-requests", type=positive_int, default=20_000,
+                        help="cap on load requests in all")
+    parser.add_argument("--max-backoff", type=positive_float, default=2.0,
+                        help="cap on a client's Retry-After wait")
     parser.add_argument("--size", default="64x96", help="HxW of the load pair")
     parser.add_argument("--warmup", type=int, default=60, help="soak requests before the RSS baseline")
-    parser.add_argument("--sequential", type=int, default=200, help="soak requests measured")
-    parser.add_argument("--max-rss-growth", type=float, default=5.0, help="percent")
-    parser.add_argument("--threads", type=int, help="ADSM_THREADS for the server (default: all cores)")
+    parser.add_argument("--sequential", type=positive_int, default=200, help="soak requests measured")
+    parser.add_argument("--max-rss-growth", type=positive_float, default=5.0, help="percent")
+    parser.add_argument("--threads", type=positive_int,
+                        help="ADSM_THREADS for the server (default: all cores)")
     parser.add_argument("--model", help="model folder (default: the shipped model)")
     parser.add_argument("--json", type=Path, help="also write the figures here")
     args = parser.parse_args(argv)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import positive_int
 from bench.serving import free_port
 
 # Worst shapes at the default limits (2.1 Mpx, 1e8 cost cells, 256 disparities): every aspect ratio the
@@ -124,7 +125,7 @@ def _shape(text: str) -> tuple[int, int, int]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench memory", description=__doc__.splitlines()[0])
     parser.add_argument("--model", metavar="DIR", help="model folder (default: the shipped default)")
-    parser.add_argument("--threads", type=int, help="compute threads (default: all cores)")
+    parser.add_argument("--threads", type=positive_int, help="compute threads (default: all cores)")
     parser.add_argument("--shapes", nargs="+", type=_shape, default=DEFAULT_SHAPES, metavar="H,W[,D]")
     parser.add_argument("--json", type=Path, metavar="OUT", help="also write the figures as JSON")
     args = parser.parse_args(argv)

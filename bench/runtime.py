@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import positive_int
 from service import jit
 from service.aggregation import shiftable_windows
 from service.cost import COST_DTYPE, cost_volume
@@ -158,12 +159,14 @@ def _baseline_channels() -> int | None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench runtime", description=__doc__.splitlines()[0])
-    parser.add_argument("--height", type=int, default=375)
-    parser.add_argument("--width", type=int, default=1242)
-    parser.add_argument("--disparities", type=int, default=192)
-    parser.add_argument("--channels", type=int, nargs="*", help="feature channels (default: 64, the model's)")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, help="Numba and ONNX Runtime threads (default: all CPUs)")
+    parser.add_argument("--height", type=positive_int, default=375)
+    parser.add_argument("--width", type=positive_int, default=1242)
+    parser.add_argument("--disparities", type=positive_int, default=192)
+    parser.add_argument("--channels", type=positive_int, nargs="*",
+                        help="feature channels (default: 64, the model's)")
+    parser.add_argument("--repeats", type=positive_int, default=5)
+    parser.add_argument("--threads", type=positive_int,
+                        help="Numba and ONNX Runtime threads (default: all CPUs)")
     parser.add_argument("--model", help="model folder for the whole-Matcher run (default: the shipped one)")
     parser.add_argument("--no-matcher", action="store_true", help="time the Numba stages only")
     parser.add_argument("--json", type=Path, help="also write the figures to this JSON file")

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import positive_int
 from bench.serving import free_port, multipart, png, wait_ready
 from training.data.evaluation_only import CONES_FOLDER
 
@@ -53,8 +54,9 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench service_latency", description=__doc__.splitlines()[0]
     )
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, help="ADSM_THREADS for the server (default: all cores)")
+    parser.add_argument("--repeats", type=positive_int, default=5)
+    parser.add_argument("--threads", type=positive_int,
+                        help="ADSM_THREADS for the server (default: all cores)")
     parser.add_argument("--model", help="model folder (default: the shipped model)")
     parser.add_argument("--cones", type=Path, default=CONES_FOLDER, help="folder with left.png and right.png")
     parser.add_argument("--json", type=Path, help="also write the figures here")

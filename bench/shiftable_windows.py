@@ -19,6 +19,7 @@ import functools
 from unittest import mock
 
 import service.matcher
+from bench import positive_int
 from service.aggregation import SHIFT_RADIUS, shiftable_windows
 from service.datasets import open_dataset
 from service.evaluation.evaluate import evaluate
@@ -43,7 +44,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--models", nargs="+", default=["service/models/adsm-fast"], metavar="DIR")
     parser.add_argument("--radii", type=int, nargs="+", default=[0, SHIFT_RADIUS, 2], metavar="R",
                         help=f"radii to compare, 0 = off (default: 0, the shipped {SHIFT_RADIUS}, 2)")
-    parser.add_argument("--pairs", type=int, default=20, help="synthetic validation pairs (default 20)")
+    parser.add_argument("--pairs", type=positive_int, default=20,
+                        help="synthetic validation pairs (default 20)")
     parser.add_argument("--p1", type=float, help="SGM P1 for every folder (default: each folder's own)")
     parser.add_argument("--p2", type=float, help="SGM P2 for every folder (default: each folder's own)")
     args = parser.parse_args(argv)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import positive_int
 from training.data.evaluation_only import CONES_FOLDER
 
 REPOSITORY = Path(__file__).resolve().parent.parent
@@ -276,11 +277,12 @@ def check_targets(report: dict[str, Any]) -> list[dict[str, Any]]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench suite", description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=positive_int, default=3)
     parser.add_argument("--models", nargs="+",
                         help="model folder names or paths (default: every shipped one)")
     parser.add_argument("--sizes", nargs="+", choices=sorted(SIZES), default=["cones", "kitti"])
-    parser.add_argument("--threads", type=int, help="Numba and ONNX Runtime threads (default: all CPUs)")
+    parser.add_argument("--threads", type=positive_int,
+                        help="Numba and ONNX Runtime threads (default: all CPUs)")
     parser.add_argument("--no-peers", action="store_true", help="skip OpenCV, libsgm, the reference conv")
     parser.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     parser.add_argument("--child", nargs=2, metavar=("KIND", "FOLDER"), help=argparse.SUPPRESS)

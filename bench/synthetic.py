@@ -17,19 +17,18 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import positive_int
 from training.data.synthetic import SyntheticConfig, apply_camera, generate, random_scene
 from training.data.synthetic.scene import render
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench synthetic", description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, nargs=2, default=(256, 512), metavar=("H", "W"))
-    parser.add_argument("--max-disparity", type=int, default=128)
-    parser.add_argument("--pairs", type=int, default=20)
+    parser.add_argument("--size", type=positive_int, nargs=2, default=(256, 512), metavar=("H", "W"))
+    parser.add_argument("--max-disparity", type=positive_int, default=128)
+    parser.add_argument("--pairs", type=positive_int, default=20)
     parser.add_argument("--json", type=Path, metavar="OUT")
     args = parser.parse_args(argv)
-    if args.pairs < 1:
-        parser.error(f"--pairs must be >= 1, got {args.pairs}")
     config = SyntheticConfig(height=args.size[0], width=args.size[1], max_disparity=args.max_disparity)
     generate(0, config)
     seconds = []

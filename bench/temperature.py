@@ -19,6 +19,7 @@ import time
 import numpy as np
 import torch
 
+from bench import positive_int
 from training.data.synthetic import SyntheticConfig, generate
 from training.networks import build_tower_pair
 from training.networks.pair import INITIAL_TEMPERATURE
@@ -81,8 +82,8 @@ def train(config: str, channels: int, steps: int, fixed: float | None, data: tup
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench temperature", description=__doc__.splitlines()[0])
     parser.add_argument("--config", default="29-1deconv3-4conv")
-    parser.add_argument("--channels", type=int, default=8)
-    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--channels", type=positive_int, default=8)
+    parser.add_argument("--steps", type=positive_int, default=300)
     parser.add_argument("--fixed", type=float, nargs="*", default=[3.0, 10.0, 30.0])
     parser.add_argument("--initial", type=float, nargs="+", default=[INITIAL_TEMPERATURE],
                         help="starting values of the learned temperature (default: %(default)s)")

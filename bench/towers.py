@@ -31,6 +31,7 @@ from onnx import TensorProto, helper, numpy_helper
 from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 from onnxruntime.quantization.shape_inference import quant_pre_process
 
+from bench import positive_int
 from export.quantize import quantize_folder
 from export.to_onnx import export_folder, fold_tower
 from training.checkpoint import save_checkpoint
@@ -130,10 +131,12 @@ def measure(config: str, channels: int, height: int, width: int, *, repeats: int
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench towers", description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=DEFAULT_CONFIG, help="network config (default: %(default)s)")
-    parser.add_argument("--channels", type=int, nargs="+", default=[64, 32, 16], help="feature channels")
-    parser.add_argument("--size", type=int, nargs=2, default=[375, 1242], metavar=("H", "W"))
-    parser.add_argument("--repeats", type=int, default=3, help="timed runs after one warm-up (median)")
-    parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)),
+    parser.add_argument("--channels", type=positive_int, nargs="+", default=[64, 32, 16],
+                        help="feature channels")
+    parser.add_argument("--size", type=positive_int, nargs=2, default=[375, 1242], metavar=("H", "W"))
+    parser.add_argument("--repeats", type=positive_int, default=3,
+                        help="timed runs after one warm-up (median)")
+    parser.add_argument("--threads", type=positive_int, default=len(os.sched_getaffinity(0)),
                         help="ONNX Runtime intra-op threads (default: the CPUs available, %(default)s)")
     parser.add_argument("--json", type=Path, help="also write the rows as JSON")
     args = parser.parse_args(argv)

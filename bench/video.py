@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import positive_int
 from bench.runtime import realistic_images
 from service.io.video import StereoVideo
 
@@ -67,7 +68,7 @@ def _run(left: Path, right: Path, wanted: bool) -> tuple[float, float, float, in
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench video", description=__doc__.splitlines()[0])
     parser.add_argument("--size", default="1080x1920", help="HEIGHTxWIDTH of one view (default 1080x1920)")
-    parser.add_argument("--frames", type=int, default=60, help="frames in the clip (default 60)")
+    parser.add_argument("--frames", type=positive_int, default=60, help="frames in the clip (default 60)")
     args = parser.parse_args(argv)
     height, width = (int(part) for part in args.size.lower().split("x"))
     print(f"{args.frames} frames of {width}x{height} per view; load average {os.getloadavg()[0]:.1f} "

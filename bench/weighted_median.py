@@ -17,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import ndimage
 
+from bench import positive_int
 from service.datasets import open_dataset
 from service.evaluation import count_errors
 from service.evaluation.breakdown import Breakdown
@@ -74,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench weighted_median",
                                      description=__doc__.splitlines()[0])
     parser.add_argument("--model", default="service/models/adsm-fast-int8")
-    parser.add_argument("--pairs", type=int, default=20, help="synthetic validation pairs (default 20)")
+    parser.add_argument("--pairs", type=positive_int, default=20,
+                        help="synthetic validation pairs (default 20)")
     args = parser.parse_args(argv)
     matcher = Matcher.from_folder(args.model)
     matcher.warmup()
