@@ -140,3 +140,6 @@ def test_reproduce_checks_its_arguments_before_recording_a_protocol(tmp_path, ca
     assert reproduce_main([*base, "--out", str(tmp_path / "b"), "--kubernetes-job", str(tmp_path / "j.yaml"),
                            "--gpus", "-1"]) == 2
     _one_line_error(capsys, "training.reproduce")
+    # --report into an --out nothing has run into said only '[Errno 2] ... table.json'.
+    assert reproduce_main([*base, "--out", str(tmp_path / "never"), "--report"]) == 1
+    assert "is not a run folder" in _one_line_error(capsys, "training.reproduce")

@@ -164,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
         split = check_split(out, args.data, args.split_seed)
         recorded = out / PROTOCOL_FILE
         if args.report:
+            if not out.is_dir():
+                print(f"{prog}: error: --report: {out} is not a run folder (nothing has run into this --out)",
+                      file=sys.stderr)
+                return 1
             saved = json.loads(recorded.read_text()) if recorded.is_file() else None
             print(report.write(out, table, split, saved), end="")
             return 0
