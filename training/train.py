@@ -149,7 +149,25 @@ def argument_problem(args: argparse.Namespace) -> str | None:
         device = None
     if device is None or device.type not in ("cpu", "cuda"):
         return f"--device must be cpu or cuda[:N], got {args.device!r}"
-    return None
+    return memory_problem(args, device)
+
+
+def memory_problem(args: argparse.Namespace, device: torch.device) -> str | None:
+    """A dense batch that cannot fit, said before minutes of example generation end in an allocation
+    failure: every crop row's scores against every column (``training.losses.dense_candidates``,
+    B x H x W x W float32) and their gradient are a lower bound of a step's memory."""
+    if args.mode != "dense" or args.batch_size is None or device.type != "cpu":
+        return None
+    height, width = args.crop
+    needed = 2 * args.batch_size * height * width * width * 4
+    processes = max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
+    available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // processes
+    if needed <= available:
+        return None
+    gib = 1 << 30
+    return (f"--batch-size {args.batch_size} of {height}x{width} crops needs at least {needed / gib:.0f} GiB "
+            f"per process (the B x H x W x W matching scores and their gradient); this machine has "
+            f"{available / gib:.0f} GiB per process: use a smaller --batch-size or --crop")
 
 
 def _out_of_memory(error: RuntimeError) -> bool:

@@ -51,6 +51,8 @@ def test_a_checkpoint_missing_its_keys_is_refused_in_one_line(tmp_path):
     (["--device", "bogus"], "--device must be cpu or cuda[:N]"),
     (["--device", "cuda:x"], "--device must be cpu or cuda[:N]"),
     (["--device", "meta"], "--device must be cpu or cuda[:N]"),
+    # Spent minutes generating 100000 crops, then died of memory.
+    (["--batch-size", "100000"], "GiB per process (the B x H x W x W matching scores"),
 ])
 def test_train_refuses_bad_numbers_and_devices_before_writing(tmp_path, capsys, argv, message):
     out = tmp_path / "run"
