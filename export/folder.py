@@ -13,7 +13,17 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import onnx
+
 from service.features.manifest import SCHEMA_ID, TOWER_FILES, validate_manifest, write_manifest
+
+
+def read_graph(path: str | Path) -> onnx.ModelProto:
+    """An ONNX file, or a ValueError naming it (its sha256 may match a manifest and still not parse)."""
+    try:
+        return onnx.load(str(path))
+    except Exception as error:  # protobuf's DecodeError and friends
+        raise ValueError(f"{path} is not a readable ONNX graph ({error})") from None
 
 
 def write_folder(out: str | Path, towers: Mapping[str, bytes], manifest: dict[str, Any]) -> Path:

@@ -36,7 +36,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 from export.baseline import build_tower
-from export.folder import write_folder
+from export.folder import read_graph, write_folder
 from export.tune import tune_folder
 from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
 
@@ -185,8 +185,8 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
     for file_name in TOWER_FILES:
         side = file_name.removesuffix(".onnx")
         core_tower = (build_tower(window, side=side) if window is not None
-                      else _load_graph(Path(core) / file_name))
-        towers.append(combine_towers(_load_graph(Path(learned) / file_name), core_tower,
+                      else read_graph(Path(core) / file_name))
+        towers.append(combine_towers(read_graph(Path(learned) / file_name), core_tower,
                                      core_weight=core_weight, texture_energy=texture_energy))
     sgm = learned_manifest["sgm"]
     chosen_p1, chosen_p2 = (sgm["p1"] if p1 is None else p1), (sgm["p2"] if p2 is None else p2)
@@ -199,13 +199,6 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
     serialised = {name: tower.SerializeToString(deterministic=True)
                   for name, tower in zip(TOWER_FILES, towers, strict=True)}
     return write_folder(out, serialised, manifest)
-
-
-def _load_graph(path: Path) -> onnx.ModelProto:
-    try:
-        return onnx.load(path)
-    except Exception as error:  # protobuf's DecodeError and friends
-        raise ValueError(f"{path} is not a readable ONNX graph ({error})") from None
 
 
 def _scalar(value: float) -> np.ndarray:

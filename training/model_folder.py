@@ -32,6 +32,7 @@ import torch
 from onnx import numpy_helper
 from torch import nn
 
+from export.folder import read_graph
 from service.features.manifest import ModelError, load_manifest, verify_files
 from training.checkpoint import Checkpoint, load_checkpoint
 from training.data.samples import random_crop
@@ -51,8 +52,17 @@ TRAINER_INPUT = {"color": "rgb", "range": [0.0, 1.0], "mean": [0.0, 0.0, 0.0], "
 
 
 def load_start(path: str | Path) -> Checkpoint:
-    """The weights a training run starts from: a checkpoint file, or a model folder (fp32 ONNX towers)."""
-    return checkpoint_from_folder(path) if Path(path).is_dir() else load_checkpoint(path)
+    """The weights a training run starts from: a checkpoint file, or a model folder (fp32 ONNX towers).
+
+    A folder is rebuilt once per process (seconds of calibration): the warm start and the provenance of
+    every checkpoint the run saves read the same one. Callers copy what they keep.
+    """
+    return _folder_checkpoint(str(path)) if Path(path).is_dir() else load_checkpoint(path)
+
+
+@functools.lru_cache(maxsize=2)
+def _folder_checkpoint(folder: str) -> Checkpoint:
+    return checkpoint_from_folder(folder)
 
 
 def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
@@ -75,7 +85,7 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
     if {key: manifest["input"].get(key) for key in TRAINER_INPUT} != TRAINER_INPUT:
         raise ValueError(f"{folder}: input normalisation {manifest['input']} is not the trainer's "
                          f"{TRAINER_INPUT}")
-    left_graph = _load_graph(folder / "left.onnx")
+    left_graph = read_graph(folder / "left.onnx")
     window = _standardize_window(left_graph)
     try:
         model = build_tower_pair(manifest["config"], channels=int(manifest["channels"]),
@@ -84,12 +94,13 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
         raise ValueError(f"{folder}: {name} is not an ADSM tower folder ({error})") from None
     _unfold(model.left, left_graph, folder / "left.onnx")
     if not model.shared:
-        _unfold(model.right, _load_graph(folder / "right.onnx"), folder / "right.onnx")
+        _unfold(model.right, read_graph(folder / "right.onnx"), folder / "right.onnx")
     left, right, disparity = _calibration_crops()
     model.eval()
     with torch.no_grad():
-        for tower, images in ((model.left, left), (model.right, right)) if not model.shared else (
-                (model.left, torch.cat([left, right])),):
+        views = [(model.left, torch.cat([left, right]))] if model.shared else [(model.left, left),
+                                                                               (model.right, right)]
+        for tower, images in views:
             _calibrate_batch_norms(tower, images)
         model.log_temperature.copy_(torch.tensor(math.log(_fit_temperature(model, left, right, disparity))))
     training = dict(manifest.get("training") or {})
@@ -99,13 +110,6 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
                       step=int(training.get("iterations", 0)), metrics=dict(manifest.get("metrics") or {}),
                       training=training, config={}, deploy={})
 
-
-def _load_graph(path: Path) -> onnx.ModelProto:
-    """An ONNX file, or a ValueError naming it (its sha256 may match a manifest and still not parse)."""
-    try:
-        return onnx.load(str(path))
-    except Exception as error:  # protobuf's DecodeError and friends
-        raise ValueError(f"{path} is not a readable ONNX graph ({error})") from None
 
 
 def _initializers(graph: onnx.ModelProto) -> dict[str, np.ndarray]:

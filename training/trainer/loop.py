@@ -9,7 +9,6 @@ file exactly where the interrupted run would have.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import os
 import time
@@ -232,15 +231,9 @@ def _save(out: Path, config: TrainConfig, model, optimizer, step: int, metrics: 
                         training=training, config=recorded, deploy=deploy)
 
 
-@functools.lru_cache(maxsize=4)
-def _start_provenance(init_from: str) -> dict[str, Any]:
-    # Read once per run: rebuilding a model folder's towers (training.model_folder) takes seconds.
-    return load_start(init_from).training or {}
-
-
 def warm_start_provenance(init_from: str, wall: float) -> dict[str, Any]:
     """What a warm-started model owes to its starting checkpoint: the chain of commands, the total time."""
-    earlier = _start_provenance(init_from)
+    earlier = load_start(init_from).training or {}
     previous = {key: earlier[key] for key in ("command", "data", "wall_time_s", "iterations", "warm_start",
                                               "model_folder") if key in earlier}
     total = wall + float(earlier.get("wall_time_total_s", earlier.get("wall_time_s", 0.0)))
