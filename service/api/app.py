@@ -22,6 +22,7 @@ from starlette.middleware import Middleware
 from starlette.staticfiles import StaticFiles
 
 import service
+from service.api.allocator import pin_mmap_threshold
 from service.api.draining import install_sigterm_drain
 from service.api.errors import install_error_handlers
 from service.api.inference import InferenceService
@@ -55,6 +56,7 @@ def create_app(settings: Settings | None = None, *, matcher: StereoMatcher | Non
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        pin_mmap_threshold()  # freed answers go back to the system (service/api/allocator.py)
         await run_in_threadpool(inference.load)
         warmup = asyncio.create_task(_warm(inference))
         restore_sigterm = install_sigterm_drain(inference)

@@ -19,25 +19,15 @@ read a 15 MB point cloud held +263 MiB). Now:
 from __future__ import annotations
 
 import asyncio
-import ctypes
-import ctypes.util
 import logging
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.api.allocator import malloc_trim
+
 logger = logging.getLogger("service.api")
 
 CHUNK_BYTES = 64 * 1024
-
-
-def _malloc_trim() -> None:
-    """Give freed heap memory back to the system (glibc only; elsewhere nothing): a dropped answer of
-    several MB was otherwise kept by the allocator, and the process's RSS never came down."""
-    name = ctypes.util.find_library("c")
-    libc = ctypes.CDLL(name) if name else None
-    trim = getattr(libc, "malloc_trim", None)
-    if trim is not None:
-        trim(0)
 
 
 class Unsent:
@@ -106,4 +96,4 @@ class AnswerDelivery:
             await self.app(scope, receive, paced_send)
         finally:
             if abandoned:
-                _malloc_trim()
+                malloc_trim()
