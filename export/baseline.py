@@ -1,6 +1,7 @@
 """Build the classical NCC baseline model folder: ONNX towers whose features are normalised raw patches.
 
-    python -m export.baseline --out service/models/ncc-baseline --measure --evaluate CONES_FOLDER
+    python -m export.baseline --out service/models/ncc-baseline --measure   # window and P1/P2 by the rule
+    python -m export.measure --model service/models/ncc-baseline --write --synthetic 20
     python -m export.baseline --out DIR [--window W --p1 P1 --p2 P2]     (no measurement)
 
 Each tower: RGB -> grey (BT.601), edge padding by w // 2 (inside the graph, so H, W are kept), the
@@ -10,10 +11,11 @@ convolution whose kernels are one-hot minus 1 / w^2), then L2 normalisation over
 A flat window (no texture) gives a zero vector, i.e. an indifferent cost 0 at every disparity.
 
 It needs only `onnx` (no torch), proves the runtime end to end before a trained model exists, and stays
-the baseline every trained model must beat. ``--measure`` chooses the window and the SGM penalties on
-synthetic pairs from the project's generator (see :func:`measure`) and records its table in the
-manifest's ``build.selection``; the defaults below are that measurement's choice. ``--evaluate`` records
-bad-2/bad-3/EPE on a Middlebury-style folder (evaluation only: nothing is chosen from it).
+the baseline every trained model must beat. ``--measure`` chooses the window and its SGM penalties by
+the rule every shipped model follows (see :func:`measure`: the lowest bad-2 on the synthetic validation
+split, never a real pair) and records its table in the manifest's ``build.selection``; the defaults
+below are that measurement's choice. The folder's figures are then recorded by ``export.measure``, as
+for every model.
 """
 
 from __future__ import annotations
@@ -21,13 +23,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from export.folder import write_folder
+from service.evaluation.tuning import P1_GRID, P2_GRID, TUNING_DATA, tune_penalties
 from service.features.defaults import RUNTIME_DEFAULTS
 from service.features.manifest import SCHEMA_ID, TOWER_FILES, ModelError
 
@@ -38,10 +43,10 @@ GREY = (0.299, 0.587, 0.114)
 # zero-mean residual is float32 rounding, ~1e-8) maps to ~1e-5 instead of amplified rounding noise.
 NORM_EPS = 1e-6
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
-DEFAULT_WINDOW = 9
+DEFAULT_WINDOW = 7
 MAX_WINDOW = 63  # w^2 = 3969 feature channels per pixel; a larger window only exhausts memory
-SGM_P1 = 65.0
-SGM_P2 = 360.0
+SGM_P1 = 45.0
+SGM_P2 = 540.0
 
 
 def build_tower(window: int, *, side: str) -> onnx.ModelProto:
@@ -86,6 +91,16 @@ def build_tower(window: int, *, side: str) -> onnx.ModelProto:
     return model
 
 
+def _tuned_on(selection: dict | None) -> str:
+    """How the folder's window and penalties were chosen, for ``sgm.tuned_on``."""
+    if not selection:
+        return "given (python -m export.baseline --window/--p1/--p2)"
+    windows = ", ".join(f"{w}x{w}" for w in selection["windows"])
+    grid = selection["grid"]
+    return (f"windows {windows}, each over the grid P1 {grid['p1']} x P2 {grid['p2']}; lowest bad-2 on "
+            f"{selection['data']} (python -m export.baseline --measure)")
+
+
 def baseline_manifest(
     *, window: int, name: str, p1: float = SGM_P1, p2: float = SGM_P2, selection: dict | None = None
 ) -> dict:
@@ -118,7 +133,7 @@ def baseline_manifest(
             "p1": p1,
             "p2": p2,
             "paths": 4,
-            "tuned_on": "synthetic pairs of training.data.synthetic (python -m export.baseline --measure)",
+            "tuned_on": _tuned_on(selection),
         },
         "disparity": {"default_max": RUNTIME_DEFAULTS.default_max, "trained_range": [0, 0]},
         "onnx": {"opset": OPSET, "precision": "fp32", "exporter": "onnx helper API (export/baseline.py)"},
@@ -135,92 +150,55 @@ def build_folder(
     p1: float = SGM_P1,
     p2: float = SGM_P2,
     selection: dict | None = None,
-    metrics: dict | None = None,
 ) -> Path:
     """Write left.onnx, right.onnx and manifest.json into ``out``; returns the manifest path."""
     out = Path(out)
     towers = {name: build_tower(window, side=name.removesuffix(".onnx")).SerializeToString(deterministic=True)
               for name in TOWER_FILES}
     manifest = baseline_manifest(window=window, name=out.name, p1=p1, p2=p2, selection=selection)
-    if metrics:
-        manifest["metrics"] = metrics
     return write_folder(out, towers, manifest)
 
 
-# The measurement that chose DEFAULT_WINDOW: synthetic pairs from the project's generator (seeds from
-# TUNING_SEED, far from the validation split), never a real pair with ground truth. SGM_P1 and SGM_P2 are
-# then chosen by the rule every shipped model follows (service.evaluation.tuning).
-TUNING_SEED = 700_000_000
-WINDOWS = (5, 7, 9, 11, 13)
-# The window is chosen at the paper's P1, P2 (the runtime defaults), then the penalties at it.
-PAPER_PENALTIES = (RUNTIME_DEFAULTS.p1, RUNTIME_DEFAULTS.p2)
-# Cost-volume work grows with w^2, so a larger window must beat a smaller one by more than this (bad-2, %).
-WINDOW_MARGIN = 0.5
+# The windows `--measure` compares: every odd side from the smallest with a texture to correlate (3x3)
+# to past the largest that has ever ranked first.
+WINDOWS = (3, 5, 7, 9, 11, 13)
 
 
-def measure(*, pairs: int = 8, height: int = 192, width: int = 384, max_disparity: int = 96) -> dict:
-    """Mean bad-1/bad-2 (%) on non-occluded pixels for each window at the paper's penalties, the smallest
-    window within WINDOW_MARGIN of the best; then P1, P2 at that window by the shared tuning rule
-    (:func:`service.evaluation.tuning.tune_penalties` on the synthetic validation split)."""
+def measure(*, pairs: int = 20, windows: Sequence[int] = WINDOWS, p1_grid: Sequence[float] = P1_GRID,
+            p2_grid: Sequence[float] = P2_GRID, log: Callable[[str], Any] | None = None) -> dict[str, Any]:
+    """Choose the window and its SGM penalties by the project's one rule, as every shipped model is chosen.
+
+    Each window's P1, P2 come from :func:`service.evaluation.tuning.tune_penalties` on the synthetic
+    validation split (``synthetic:pairs``, every ground-truth pixel); the window whose tuned bad-2 is lowest
+    wins, EPE breaking ties. Returns the table recorded as the manifest's ``build.selection``: each
+    window's choice and figures, the winner's whole grid, and ``choice`` (window, p1, p2).
+    """
     import tempfile
 
     from service.datasets import open_dataset
-    from service.evaluation import count_errors
-    from service.evaluation.tuning import TUNING_DATA, tune_penalties
-    from service.matcher import Matcher, MatchOptions
-    from training.data.synthetic import SyntheticConfig, generate
-
-    config = SyntheticConfig(height=height, width=width, max_disparity=max_disparity * 3 // 4)
-    samples = [generate(TUNING_SEED + index, config) for index in range(pairs)]
-
-    def score(matcher: Matcher, p1: float, p2: float) -> dict:
-        bad1, bad2 = [], []
-        for sample in samples:
-            options = MatchOptions(max_disparity=max_disparity, p1=p1, p2=p2)
-            disparity = matcher(sample.left, sample.right, options).disparity
-            figures = count_errors(disparity, sample.disparity, sample.nonoccluded).summary()
-            bad1.append(figures["bad1"])
-            bad2.append(figures["bad2"])
-        return {"p1": p1, "p2": p2, "bad1": round(sum(bad1) / pairs, 2), "bad2": round(sum(bad2) / pairs, 2)}
-
-    table: dict = {"pairs": f"synthetic seeds {TUNING_SEED}..{TUNING_SEED + pairs - 1}, {height}x{width}, "
-                   f"D={max_disparity}, non-occluded pixels", "windows": {}, "penalties": []}
-    with tempfile.TemporaryDirectory() as scratch:
-        for window in WINDOWS:
-            folder = build_folder(Path(scratch) / f"ncc-{window}", window=window).parent
-            table["windows"][window] = score(Matcher.from_folder(folder), *PAPER_PENALTIES)
-            print(f"window {window}: {table['windows'][window]}", file=sys.stderr)
-        lowest = min(row["bad2"] for row in table["windows"].values())
-        best = min(w for w in WINDOWS if table["windows"][w]["bad2"] <= lowest + WINDOW_MARGIN)
-        matcher = Matcher.from_folder(build_folder(Path(scratch) / "best", window=best).parent)
-        def log(row: str) -> None:
-            print(f"window {best}: {row}", file=sys.stderr)
-
-        chosen, table["penalties"] = tune_penalties(matcher, open_dataset(TUNING_DATA), log=log)
-    table["penalties_on"] = f"{TUNING_DATA} (the validation split), all ground-truth pixels, bad-2"
-    table["choice"] = {"window": best, "p1": chosen["p1"], "p2": chosen["p2"]}
-    return table
-
-
-def evaluate(folder: Path, pairs_folder: Path) -> dict:
-    """bad-2, bad-3 (%) and EPE of the model folder on each pair of a Middlebury-style folder (all pixels
-    with ground truth, and the non-occluded ones), the runtime's defaults, D = the dataset's range; the
-    figures of ``adsm eval`` (service.evaluation), rounded for the manifest."""
-    from service.datasets.readers import cones
-    from service.evaluation.evaluate import evaluate as run
     from service.matcher import Matcher
 
-    matcher, metrics = Matcher.from_folder(folder), {}
-    matcher.warmup()  # seconds without JIT compilation, as adsm eval reports them
-    for pair in run(matcher, cones(pairs_folder))["per_pair"]:
-        row = {"max_disparity": pair["max_disparity"], "seconds": round(pair["seconds"], 3)}
-        for suffix, figures in (("", pair["all"]), ("_nonocc", pair["nonoccluded"])):
-            if figures is not None:
-                row[f"bad2{suffix}"] = round(figures["bad2"], 2)
-                row[f"bad3{suffix}"] = round(figures["bad3"], 2)
-                row[f"epe{suffix}"] = round(figures["epe"], 3)
-        metrics[pair["name"]] = row
-    return metrics
+    dataset = open_dataset(f"{TUNING_DATA.partition(':')[0]}:{pairs}")
+    table: dict[str, Any] = {
+        "rule": "tune_penalties for each window, then the lowest bad-2 (EPE breaks ties); export.baseline",
+        "data": f"synthetic:{pairs} (the validation split), all ground-truth pixels",
+        "grid": {"p1": list(p1_grid), "p2": list(p2_grid)},
+        "windows": {},
+    }
+    grids: dict[int, list[dict[str, Any]]] = {}
+    with tempfile.TemporaryDirectory() as scratch:
+        for window in windows:
+            folder = build_folder(Path(scratch) / f"ncc-{window}", window=window).parent
+            chosen, grids[window] = tune_penalties(
+                Matcher.from_folder(folder), dataset, p1_grid=p1_grid, p2_grid=p2_grid,
+                log=None if log is None else (lambda row, window=window: log(f"window {window}: {row}")))
+            table["windows"][str(window)] = next(
+                row for row in grids[window] if row["p1"] == chosen["p1"] and row["p2"] == chosen["p2"])
+    winner = min(windows, key=lambda w: (table["windows"][str(w)]["bad2"], table["windows"][str(w)]["epe"]))
+    table["penalties"] = grids[winner]
+    table["choice"] = {"window": winner, "p1": table["windows"][str(winner)]["p1"],
+                       "p2": table["windows"][str(winner)]["p2"]}
+    return table
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -229,19 +207,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--window", type=int, default=DEFAULT_WINDOW, help="odd window side (%(default)s)")
     parser.add_argument("--p1", type=float, default=SGM_P1, help="SGM P1 in cost units (%(default)s)")
     parser.add_argument("--p2", type=float, default=SGM_P2, help="SGM P2 in cost units (%(default)s)")
-    parser.add_argument("--measure", action="store_true", help="choose window, P1, P2 by the measurement")
-    parser.add_argument("--evaluate", type=Path, metavar="DIR", help="record metrics on a Middlebury folder")
+    parser.add_argument("--measure", action="store_true",
+                        help="choose the window, P1 and P2 by the project's rule (minutes; needs the train "
+                        "extra's generator) instead of --window/--p1/--p2")
     args = parser.parse_args(argv)
     window, p1, p2, selection = args.window, args.p1, args.p2, None
     try:
         if args.measure:
-            selection = measure()
+            selection = measure(log=lambda line: print(line, file=sys.stderr))
             window, p1, p2 = (selection["choice"][key] for key in ("window", "p1", "p2"))
+            print(json.dumps(selection["choice"]), file=sys.stderr)
         path = build_folder(args.out, window=window, p1=p1, p2=p2, selection=selection)
-        if args.evaluate is not None:
-            metrics = evaluate(args.out, args.evaluate)
-            path = build_folder(args.out, window=window, p1=p1, p2=p2, selection=selection, metrics=metrics)
-            print(json.dumps(metrics))
     except (OSError, ValueError, ModelError) as error:
         print(f"export.baseline: error: {error}", file=sys.stderr)
         return 1
