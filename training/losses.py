@@ -122,6 +122,12 @@ def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
 JUMP_PX = 2.0
 
 
+def check_edge_weight(weight: float) -> None:
+    """Refuse a depth-edge weight that is negative or not finite (NaN would make every loss NaN)."""
+    if not 0 <= weight < float("inf"):
+        raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {weight}")
+
+
 def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight: float,
                        radius: int = 3) -> torch.Tensor:
     """Per-example loss weights [M]: ``1 + weight`` within ``radius`` px of a depth edge, else 1.
@@ -132,8 +138,7 @@ def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight:
     pixels where a wide receptive field fattens the foreground, which a plain mean under-weights (they
     are a few percent of a crop).
     """
-    if not 0 <= weight < float("inf"):  # NaN too: it would make every loss NaN
-        raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {weight}")
+    check_edge_weight(weight)
     known = torch.isfinite(disparity)
     value = torch.where(known, disparity, torch.zeros_like(disparity))
     edge = torch.zeros_like(known)

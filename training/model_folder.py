@@ -111,7 +111,6 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
                       training=training, config={}, deploy={})
 
 
-
 def _initializers(graph: onnx.ModelProto) -> dict[str, np.ndarray]:
     return {tensor.name: numpy_helper.to_array(tensor) for tensor in graph.graph.initializer}
 

@@ -72,5 +72,6 @@ def _validate(args: argparse.Namespace) -> int:
         print(f"updated {args.checkpoint}")
     return 0
 
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -135,11 +135,11 @@ def main(argv: list[str] | None = None) -> int:
         if value < 1:
             print(f"{prog}: error: --{name} must be >= 1, got {value}", file=sys.stderr)
             return 2
-    for name, value in (("gpus", args.gpus), ("cpus", args.cpus), ("memory-gib", args.memory_gib),
-                        ("parallelism", args.parallelism), ("threads", args.threads)):
-        if value is not None and value < (0 if name == "gpus" else 1):
-            print(f"{prog}: error: --{name} must be >= {0 if name == 'gpus' else 1}, got {value}",
-                  file=sys.stderr)
+    for name, value, least in (("gpus", args.gpus, 0), ("cpus", args.cpus, 1),
+                               ("memory-gib", args.memory_gib, 1), ("parallelism", args.parallelism, 1),
+                               ("threads", args.threads, 1)):
+        if value is not None and value < least:
+            print(f"{prog}: error: --{name} must be >= {least}, got {value}", file=sys.stderr)
             return 2
     protocol = protocol_of(args)
     if args.kubernetes_job:

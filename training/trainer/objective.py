@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from training.losses import LABELS, dense_candidates, depth_edge_weights, matching_loss
+from training.losses import LABELS, check_edge_weight, dense_candidates, depth_edge_weights, matching_loss
 from training.networks import TowerPair, dense_features
 
 
@@ -25,8 +25,7 @@ class Objective(nn.Module):
             raise ValueError("the sub-pixel label needs the fractional truth of dense crops (--mode dense)")
         if edge_weight and mode == "patch":
             raise ValueError("the depth-edge weight needs the dense ground truth of crops (--mode dense)")
-        if not 0 <= edge_weight < float("inf"):  # NaN too: it would make every loss NaN
-            raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {edge_weight}")
+        check_edge_weight(edge_weight)
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
