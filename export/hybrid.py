@@ -4,6 +4,7 @@
     python -m export.hybrid --learned DIR_A --core DIR_B --core-weight 0.5 --out DIR   (two trained folders)
     python -m export.hybrid ... --p1 P1 --p2 P2        (penalties; default: the learned folder's)
     python -m export.hybrid ... --tune                 (P1/P2 by the shared rule: export.tune)
+    python -m export.hybrid --learned DIR --gate runs/gate/NAME/gate.json --out DIR   (a learned share)
 
 The core is an NCC window (the tower of ``export.baseline``, ``--window``) or another trained folder's
 towers (``--core``). Each hybrid tower runs both towers on the same input and concatenates their
@@ -18,13 +19,16 @@ receptive field fattens the foreground (docs/training.md, "Hybrid cost"); it sta
 folder (9 taps of a 3x3 window: no work worth quantising). With a trained core of another receptive field
 the blend is an ensemble of two learned costs (docs/training.md, "Small towers with today's runtime,
 and ensembles of towers"). The manifest keeps the learned folder's training provenance, records the
-core's in ``build.core_training`` and the build in ``build``.
+core's in ``build.core_training`` and the build in ``build``. With ``--gate`` (an NCC core) the share is
+learned per pixel by ``python -m training.gate`` (training/networks/gate.py): w(x) = sigmoid(a . [learned
+features, NCC window, log(E + eps)] + b), recorded with its training in ``build.gate``.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import json
 import math
 import shlex
 import sys
@@ -35,7 +39,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from export.baseline import build_tower
+from export.baseline import NORM_EPS, build_tower
 from export.folder import read_graph, write_folder
 from export.tune import tune_folder
 from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
@@ -44,18 +48,24 @@ FEATURES = "features"
 CORE_PREFIX = "core/"
 LEARNED_FEATURES = "learned/features"
 ENERGY = CORE_PREFIX + "energy"  # export.baseline's node output: the NCC window's zero-mean energy
+GATE_SCHEMA = "adsm-gate/1"  # what python -m training.gate writes
 
 
-def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weight: float,
-                   texture_energy: float | None = None) -> onnx.ModelProto:
+def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weight: float | None,
+                   texture_energy: float | None = None,
+                   gate: dict[str, Any] | None = None) -> onnx.ModelProto:
     """One graph: ``image`` -> concat(sqrt(1 - w) * learned features, sqrt(w) * core features).
 
     Both inputs map ``image`` [1, 3, H, W] to unit-norm ``features`` [1, C, H, W]; so does the result,
     with C the sum of theirs. ``texture_energy`` E0 (an NCC core only) makes the share depend on the
     pixel: w(x) = w * E / (E + E0), E the zero-mean energy of the pixel's NCC window, so flat windows
-    (where noise decides a small window's correlation) lean on the learned features.
+    (where noise decides a small window's correlation) lean on the learned features. ``gate`` (an NCC
+    core, instead of ``core_weight``): the learned share of ``training.gate``'s gate.json.
     """
-    if not 0.0 < core_weight < 1.0:
+    if gate is not None:
+        if core_weight is not None or texture_energy is not None:
+            raise ValueError("a learned gate sets the share: give no core weight or texture energy with it")
+    elif core_weight is None or not 0.0 < core_weight < 1.0:
         raise ValueError(f"the core weight must lie strictly between 0 and 1, got {core_weight}")
     if texture_energy is not None and not texture_energy > 0.0:
         raise ValueError(f"the texture energy must be positive, got {texture_energy}")
@@ -70,14 +80,19 @@ def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weig
     core_graph = onnx.compose.add_prefix_graph(core.graph, CORE_PREFIX, rename_inputs=False)
     for node in core_graph.node:
         node.input[:] = [image if name == core.graph.input[0].name else name for name in node.input]
-    if texture_energy is not None and not any(ENERGY in node.output for node in core_graph.node):
-        raise ValueError("a texture-adaptive share needs an NCC core (--window): it reads the window's "
-                         "energy")
+    if (texture_energy is not None or gate is not None) and not any(ENERGY in node.output
+                                                                   for node in core_graph.node):
+        raise ValueError("a texture-adaptive or learned share needs an NCC core (--window): it reads the "
+                         "window's energy")
     graph.node.extend(core_graph.node)
     graph.initializer.extend(core_graph.initializer)
     core_channels = core.graph.output[0].type.tensor_type.shape.dim[1].dim_value
     learned_channels = graph.output[0].type.tensor_type.shape.dim[1].dim_value
-    if texture_energy is None:
+    if gate is not None:
+        _gate_nodes(graph, gate, learned_channels=learned_channels, core_channels=core_channels,
+                    core_features=core_graph.output[0].name)
+    elif texture_energy is None:
+        assert core_weight is not None
         graph.initializer.extend([
             numpy_helper.from_array(_scalar(math.sqrt(1.0 - core_weight)), "learned_share"),
             numpy_helper.from_array(_scalar(math.sqrt(core_weight)), "core_share"),
@@ -105,15 +120,46 @@ def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weig
     ])
     graph.output[0].type.tensor_type.shape.dim[1].dim_value = learned_channels + core_channels
     graph.name = f"{graph.name}+{core.graph.name}"
-    share = _share_text(core_weight, texture_energy)
+    share = _share_text(core_weight, texture_energy, gate)
     combined.doc_string = (f"hybrid tower: features of the learned cosine and of the core "
                            f"({core.graph.name}), core share {share}")
     onnx.checker.check_model(combined, full_check=True)
     return combined
 
 
-def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float, window: int | None = None,
-                    core: dict[str, Any] | None = None, texture_energy: float | None = None, p1: float,
+def _gate_nodes(graph: onnx.GraphProto, gate: dict[str, Any], *, learned_channels: int, core_channels: int,
+                core_features: str) -> None:
+    """w = sigmoid(1x1 conv of [learned, core, log(E + eps)]) and the two shares: training.networks.gate."""
+    inputs = learned_channels + core_channels + 1
+    if int(gate["learned_channels"]) != learned_channels or int(gate["window"]) ** 2 != core_channels:
+        raise ValueError(f"the gate was trained for {gate['learned_channels']} learned channels and a "
+                         f"{gate['window']}x{gate['window']} window, not {learned_channels} and "
+                         f"{core_channels} taps")
+    weight = np.asarray(gate["weight"], np.float32)
+    if weight.size != inputs:
+        raise ValueError(f"the gate has {weight.size} weights; {inputs} expected")
+    graph.initializer.extend([
+        numpy_helper.from_array(weight.reshape(1, inputs, 1, 1), "gate/weight"),
+        numpy_helper.from_array(_scalar(float(gate["bias"])), "gate/bias"),
+        numpy_helper.from_array(_scalar(NORM_EPS), "gate/eps"),
+        numpy_helper.from_array(_scalar(1.0), "blend/one"),
+    ])
+    graph.node.extend([
+        helper.make_node("Add", [ENERGY, "gate/eps"], ["gate/energy_eps"], name="gate_energy"),
+        helper.make_node("Log", ["gate/energy_eps"], ["gate/log_energy"], name="gate_log_energy"),
+        helper.make_node("Concat", [LEARNED_FEATURES, core_features, "gate/log_energy"], ["gate/inputs"],
+                         axis=1, name="gate_inputs"),
+        helper.make_node("Conv", ["gate/inputs", "gate/weight", "gate/bias"], ["gate/logit"], name="gate"),
+        helper.make_node("Sigmoid", ["gate/logit"], ["blend/w"], name="gate_share"),
+        helper.make_node("Sub", ["blend/one", "blend/w"], ["blend/1-w"], name="blend_rest"),
+        helper.make_node("Sqrt", ["blend/w"], ["core_share"], name="core_share_sqrt"),
+        helper.make_node("Sqrt", ["blend/1-w"], ["learned_share"], name="learned_share_sqrt"),
+    ])
+
+
+def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float | None,
+                    window: int | None = None, core: dict[str, Any] | None = None,
+                    texture_energy: float | None = None, gate: dict[str, Any] | None = None, p1: float,
                     p2: float, tuned_on: str, command: str) -> dict[str, Any]:
     """The hybrid folder's manifest (``files`` and ``metrics`` filled later), from the learned one's.
 
@@ -123,7 +169,7 @@ def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float, w
         raise ValueError("give the core as an NCC window or as a trained folder's manifest, not both")
     manifest = {key: copy.deepcopy(value) for key, value in learned.items()
                 if key not in ("files", "metrics")}
-    share = _share_text(core_weight, texture_energy)
+    share = _share_text(core_weight, texture_energy, gate)
     if core is None:
         assert window is not None
         core_name, core_config = f"NCC of {window}x{window} grey windows", f"ncc-{window}x{window}"
@@ -145,13 +191,18 @@ def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float, w
         "config": f"{learned['config']}+{core_config}",
         "channels": learned["channels"] + core_channels,
         "receptive_field": max(learned["receptive_field"], core_field),
-        "sgm": {"p1": p1, "p2": p2, "paths": 4, "tuned_on": tuned_on},
+        # The learned folder's shiftable-window setting stays: the blend changes the cost, not that step.
+        "sgm": {"p1": p1, "p2": p2, "paths": 4, "tuned_on": tuned_on,
+                **({"shiftable_windows": learned["sgm"]["shiftable_windows"]}
+                   if "shiftable_windows" in learned["sgm"] else {})},
         "build": {"command": command, "learned": learned["name"], "core_weight": core_weight,
                   "texture_energy": texture_energy, "learned_build": learned.get("build")},
         "metrics": {},
     }
     if core is None:
         manifest["build"]["ncc_window"] = window
+        if gate is not None:
+            manifest["build"]["gate"] = copy.deepcopy(gate)
     else:
         manifest["build"] |= {"core": core["name"], "core_training": core.get("training"),
                               "core_build": core.get("build"), "core_onnx": core["onnx"]}
@@ -161,16 +212,27 @@ def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float, w
     return manifest
 
 
-def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, window: int | None = None,
-                 core: str | Path | None = None, texture_energy: float | None = None, p1: float | None = None,
-                 p2: float | None = None, tuned_on: str | None = None, command: str = "") -> Path:
+def build_folder(out: str | Path, *, learned: str | Path, core_weight: float | None = None,
+                 window: int | None = None, core: str | Path | None = None,
+                 texture_energy: float | None = None, gate: str | Path | None = None,
+                 p1: float | None = None, p2: float | None = None, tuned_on: str | None = None,
+                 command: str = "") -> Path:
     """Write the hybrid left.onnx, right.onnx and manifest.json into ``out``; returns the manifest path.
 
-    The core is an NCC ``window`` (3 when neither is given) or a trained ``core`` folder.
+    The core is an NCC ``window`` (3 when neither is given; the gate's window with ``gate``) or a trained
+    ``core`` folder. ``gate``: a gate.json of ``python -m training.gate`` instead of ``core_weight``.
     ``p1``/``p2`` default to the learned folder's penalties.
     """
     if window is not None and core is not None:
         raise ValueError("give the core as --window or as --core, not both")
+    gate_values = None if gate is None else read_gate(gate)
+    if gate_values is not None:
+        if core is not None:
+            raise ValueError("a learned gate blends an NCC window, not a trained core")
+        if window is not None and window != int(gate_values["window"]):
+            raise ValueError(f"the gate was trained for a {gate_values['window']}x{gate_values['window']} "
+                             f"window, not {window}x{window}")
+        window = int(gate_values["window"])
     if core is None and window is None:
         window = 3
     learned_manifest = load_manifest(learned)
@@ -187,14 +249,16 @@ def build_folder(out: str | Path, *, learned: str | Path, core_weight: float, wi
         core_tower = (build_tower(window, side=side) if window is not None
                       else read_graph(Path(core) / file_name))
         towers.append(combine_towers(read_graph(Path(learned) / file_name), core_tower,
-                                     core_weight=core_weight, texture_energy=texture_energy))
+                                     core_weight=core_weight, texture_energy=texture_energy,
+                                     gate=gate_values))
     sgm = learned_manifest["sgm"]
     chosen_p1, chosen_p2 = (sgm["p1"] if p1 is None else p1), (sgm["p2"] if p2 is None else p2)
     if tuned_on is None:
         tuned_on = (f"the learned folder's ({learned_manifest['name']})" if (p1, p2) == (None, None)
                     else "given on the command line")
     manifest = hybrid_manifest(learned_manifest, name=out.name, core_weight=core_weight, window=window,
-                               core=core_manifest, texture_energy=texture_energy, p1=chosen_p1,
+                               core=core_manifest, texture_energy=texture_energy, gate=gate_values,
+                               p1=chosen_p1,
                                p2=chosen_p2, tuned_on=tuned_on, command=command)
     serialised = {name: tower.SerializeToString(deterministic=True)
                   for name, tower in zip(TOWER_FILES, towers, strict=True)}
@@ -205,7 +269,26 @@ def _scalar(value: float) -> np.ndarray:
     return np.asarray([value], np.float32)
 
 
-def _share_text(core_weight: float, texture_energy: float | None) -> str:
+def read_gate(path: str | Path) -> dict[str, Any]:
+    """A gate.json of ``python -m training.gate``; ValueError if it is not one."""
+    try:
+        values = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path} is not JSON: {error}") from None
+    if not isinstance(values, dict) or values.get("schema") != GATE_SCHEMA:
+        raise ValueError(f"{path} is not a gate of python -m training.gate (schema {GATE_SCHEMA})")
+    keys = ("window", "learned_channels", "weight", "bias", "training")
+    missing = [key for key in keys if key not in values]
+    if missing:
+        raise ValueError(f"{path} lacks {', '.join(missing)}")
+    return values
+
+
+def _share_text(core_weight: float | None, texture_energy: float | None,
+                gate: dict[str, Any] | None = None) -> str:
+    if gate is not None:
+        return "sigmoid(a . [learned, NCC window, log(E + eps)] + b), learned (build.gate)"
+    assert core_weight is not None
     return f"{core_weight:g}" if texture_energy is None else f"{core_weight:g} E / (E + {texture_energy:g})"
 
 
@@ -219,8 +302,11 @@ def main(argv: list[str] | None = None) -> int:
     core = parser.add_mutually_exclusive_group()
     core.add_argument("--window", type=int, help="the core is NCC of odd N x N grey windows (default 3)")
     core.add_argument("--core", type=Path, metavar="DIR", help="the core is another trained folder's towers")
-    parser.add_argument("--core-weight", type=float, required=True,
-                        metavar="W", help="the core's share w of the cost, 0 < w < 1")
+    share = parser.add_mutually_exclusive_group(required=True)
+    share.add_argument("--core-weight", type=float, metavar="W",
+                       help="the core's share w of the cost, 0 < w < 1")
+    share.add_argument("--gate", type=Path, metavar="JSON",
+                       help="a per-pixel share learned by python -m training.gate (an NCC core)")
     parser.add_argument("--texture-energy", type=float, metavar="E0",
                         help="(NCC core) make the share w * E / (E + E0), E the window's zero-mean energy "
                              "(default: a constant share w)")
@@ -234,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.tune and (args.p1 is not None or args.p2 is not None):
             raise ValueError("--tune chooses P1 and P2: give either --tune or --p1/--p2")
         options = dict(learned=args.learned, window=args.window, core=args.core, core_weight=args.core_weight,
-                       texture_energy=args.texture_energy, command=command)
+                       texture_energy=args.texture_energy, gate=args.gate, command=command)
         path = build_folder(args.out, p1=args.p1, p2=args.p2, **options)
         if args.tune:
             choice, tuned_on = tune_folder(args.out, log=lambda row: print(row, file=sys.stderr))

@@ -21,8 +21,10 @@ from service.evaluation.evaluate import evaluate
 from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
 from service.features import Towers
 from service.features.defaults import RUNTIME_DEFAULTS
+from service.features.towers import FeatureTowers
 from service.matcher import Matcher
 from training.networks import TowerPair, dense_features
+from training.networks.gate import NCCWindow, TextureGate, gated_features
 
 
 class TorchTowers(Towers):
@@ -70,6 +72,40 @@ class TorchTowers(Towers):
     def warmup(self) -> None:
         image = np.zeros((48, 48, 3), np.uint8)
         self(image, image)
+
+
+class GatedTowers(Towers):
+    """A folder's ONNX towers with the NCC window and the gate applied: the Matcher's towers in validation."""
+
+    def __init__(self, learned: FeatureTowers, gate: TextureGate) -> None:
+        self.learned, self.gate = learned, gate
+        self.ncc = NCCWindow(gate.window)
+        spec = learned.manifest["input"]
+        low, high = (float(v) for v in spec["range"])
+        self._gain = torch.tensor([(high - low) / 255.0 / s for s in spec["std"]])[:, None, None]
+        self._offset = torch.tensor([(low - m) / s for m, s in zip(spec["mean"], spec["std"], strict=True)]
+                                    )[:, None, None]
+        self.manifest: dict[str, Any] = dict(learned.manifest)
+        self.manifest["channels"] = int(learned.manifest["channels"]) + gate.window ** 2
+        self.manifest["receptive_field"] = max(int(learned.manifest["receptive_field"]), gate.window)
+
+    def image(self, image: np.ndarray) -> torch.Tensor:
+        """uint8 (H, W, 3) -> the graph's input [1, 3, H, W] (the folder's input normalisation)."""
+        return (torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float() * self._gain
+                + self._offset)[None]
+
+    @torch.no_grad()
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        learned = self.learned(left, right)
+        return tuple(self.gated(torch.from_numpy(features)[None], self.image(image))[0].numpy()  # type: ignore[return-value]
+                     for features, image in zip(learned, (left, right), strict=True))
+
+    def gated(self, learned: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        ncc, energy = self.ncc(image)
+        return gated_features(learned, ncc, self.gate(learned, ncc, energy))
+
+    def warmup(self) -> None:
+        self.learned.warmup()
 
 
 def runtime_metrics(model: TowerPair, dataset: Sequence[StereoSample], *,

@@ -157,3 +157,66 @@ def test_the_command_refuses_two_cores_and_its_own_input_as_output(
     errors = capsys.readouterr().err
     assert "one of the folders it reads" in errors and "does not exist" in errors
     assert "Traceback" not in errors
+
+
+def _gate(learned_channels: int = 32, window: int = 3, *, seed: int = 5) -> dict:
+    """A gate.json as python -m training.gate writes it (random weights: the graph must apply any)."""
+    rng = np.random.default_rng(seed)
+    return {"schema": "adsm-gate/1", "window": window, "learned_channels": learned_channels,
+            "weight": [float(v) for v in rng.normal(0, 0.5, learned_channels + window * window + 1)],
+            "bias": 1.5, "learned": {"name": LEARNED.name}, "training": {"command": "test"}}
+
+
+def test_a_learned_gate_sets_each_pixels_share(image: np.ndarray) -> None:
+    gate = _gate()
+    learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left")
+    hybrid = _features(combine_towers(learned, ncc, core_weight=None, gate=gate), image)
+    learned_features, ncc_features = _features(learned, image), _features(ncc, image)
+    grey = image[0].transpose(1, 2, 0) @ np.float32([0.299, 0.587, 0.114])
+    windows = np.lib.stride_tricks.sliding_window_view(np.pad(grey, 1, mode="edge"), (3, 3))
+    windows = windows.reshape(*grey.shape, 9)
+    energy = ((windows - windows.mean(-1, keepdims=True)) ** 2).sum(-1)
+    inputs = np.concatenate([learned_features[0], ncc_features[0], np.log(energy + 1e-6)[None]])
+    share = 1 / (1 + np.exp(-(np.tensordot(np.float32(gate["weight"]), inputs, axes=1) + gate["bias"])))
+    assert share.min() > 0.05 and share.max() < 0.999 and share.std() > 0.05   # varies per pixel
+    np.testing.assert_allclose(hybrid[0, :32], np.sqrt(1 - share) * learned_features[0], atol=1e-5)
+    np.testing.assert_allclose(hybrid[0, 32:], np.sqrt(share) * ncc_features[0], atol=1e-5)
+    with pytest.raises(ValueError, match="give no core weight"):
+        combine_towers(learned, ncc, core_weight=0.3, gate=gate)
+    with pytest.raises(ValueError, match="trained for 16 learned channels"):
+        combine_towers(learned, ncc, core_weight=None, gate=_gate(16))
+
+
+def test_a_gated_folder_records_its_gate_and_keeps_the_learned_settings(tmp_path: Path) -> None:
+    gate_path = tmp_path / "gate.json"
+    gate_path.write_text(json.dumps(_gate()))
+    path = build_folder(tmp_path / "gated", learned=MODELS_DIR / "adsm-rf11-int8", gate=gate_path,
+                        command="test")
+    manifest = load_manifest(path.parent)
+    learned = load_manifest(MODELS_DIR / "adsm-rf11-int8")
+    assert manifest["build"]["gate"] == _gate() and manifest["build"]["ncc_window"] == 3
+    assert manifest["channels"] == 41 and manifest["training"] == learned["training"]
+    assert manifest["sgm"]["shiftable_windows"] is learned["sgm"]["shiftable_windows"] is True
+    assert "learned (build.gate)" in manifest["description"]
+    left = np.random.default_rng(4).integers(0, 256, (40, 64, 3), dtype=np.uint8)
+    right = np.roll(left, -5, axis=1)
+    disparity = Matcher.from_folder(path.parent)(left, right, MatchOptions(max_disparity=16)).disparity
+    assert np.nanmedian(np.abs(disparity[8:-8, 24:-8] - 5)) < 0.5
+
+
+def test_the_command_refuses_a_file_that_is_not_a_gate(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "other.json").write_text(json.dumps({"schema": "something else"}))
+    (tmp_path / "broken.json").write_text("{")
+    (tmp_path / "gate5.json").write_text(json.dumps(_gate(window=5)))
+    out = str(tmp_path / "h")
+    assert main(["--learned", str(LEARNED), "--gate", str(tmp_path / "other.json"), "--out", out]) == 1
+    assert main(["--learned", str(LEARNED), "--gate", str(tmp_path / "broken.json"), "--out", out]) == 1
+    assert main(["--learned", str(LEARNED), "--gate", str(tmp_path / "gate5.json"), "--out", out,
+                 "--window", "3"]) == 1
+    assert main(["--learned", str(LEARNED), "--gate", str(tmp_path / "gate5.json"), "--out", out,
+                 "--core", str(TRAINED_CORE)]) == 1
+    errors = capsys.readouterr().err
+    assert "not a gate of python -m training.gate" in errors and "is not JSON" in errors
+    assert "trained for a 5x5 window, not 3x3" in errors and "not a trained core" in errors
+    assert "Traceback" not in errors
