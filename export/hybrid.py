@@ -99,18 +99,15 @@ def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weig
         ])
     else:
         graph.initializer.extend([numpy_helper.from_array(_scalar(value), name) for name, value in (
-            ("blend/core_weight", core_weight), ("blend/texture_energy", texture_energy),
-            ("blend/one", 1.0))])
+            ("blend/core_weight", core_weight), ("blend/texture_energy", texture_energy))])
         graph.node.extend([
             helper.make_node("Add", [ENERGY, "blend/texture_energy"], ["blend/energy_e0"],
                              name="blend_energy"),
             helper.make_node("Div", [ENERGY, "blend/energy_e0"], ["blend/textured"], name="blend_textured"),
             helper.make_node("Mul", ["blend/textured", "blend/core_weight"], ["blend/w"],
                              name="blend_weight"),
-            helper.make_node("Sub", ["blend/one", "blend/w"], ["blend/1-w"], name="blend_rest"),
-            helper.make_node("Sqrt", ["blend/w"], ["core_share"], name="core_share_sqrt"),
-            helper.make_node("Sqrt", ["blend/1-w"], ["learned_share"], name="learned_share_sqrt"),
         ])
+        _share_nodes(graph)
     graph.node.extend([
         helper.make_node("Mul", [LEARNED_FEATURES, "learned_share"], ["learned/scaled"],
                          name="learned_share"),
@@ -142,7 +139,6 @@ def _gate_nodes(graph: onnx.GraphProto, gate: dict[str, Any], *, learned_channel
         numpy_helper.from_array(weight.reshape(1, inputs, 1, 1), "gate/weight"),
         numpy_helper.from_array(_scalar(float(gate["bias"])), "gate/bias"),
         numpy_helper.from_array(_scalar(NORM_EPS), "gate/eps"),
-        numpy_helper.from_array(_scalar(1.0), "blend/one"),
     ])
     graph.node.extend([
         helper.make_node("Add", [ENERGY, "gate/eps"], ["gate/energy_eps"], name="gate_energy"),
@@ -151,6 +147,14 @@ def _gate_nodes(graph: onnx.GraphProto, gate: dict[str, Any], *, learned_channel
                          axis=1, name="gate_inputs"),
         helper.make_node("Conv", ["gate/inputs", "gate/weight", "gate/bias"], ["gate/logit"], name="gate"),
         helper.make_node("Sigmoid", ["gate/logit"], ["blend/w"], name="gate_share"),
+    ])
+    _share_nodes(graph)
+
+
+def _share_nodes(graph: onnx.GraphProto) -> None:
+    """A per-pixel share ``blend/w`` -> ``core_share`` sqrt(w) and ``learned_share`` sqrt(1 - w)."""
+    graph.initializer.append(numpy_helper.from_array(_scalar(1.0), "blend/one"))
+    graph.node.extend([
         helper.make_node("Sub", ["blend/one", "blend/w"], ["blend/1-w"], name="blend_rest"),
         helper.make_node("Sqrt", ["blend/w"], ["core_share"], name="core_share_sqrt"),
         helper.make_node("Sqrt", ["blend/1-w"], ["learned_share"], name="learned_share_sqrt"),

@@ -80,19 +80,13 @@ class GatedTowers(Towers):
     def __init__(self, learned: FeatureTowers, gate: TextureGate) -> None:
         self.learned, self.gate = learned, gate
         self.ncc = NCCWindow(gate.window)
-        spec = learned.manifest["input"]
-        low, high = (float(v) for v in spec["range"])
-        self._gain = torch.tensor([(high - low) / 255.0 / s for s in spec["std"]])[:, None, None]
-        self._offset = torch.tensor([(low - m) / s for m, s in zip(spec["mean"], spec["std"], strict=True)]
-                                    )[:, None, None]
         self.manifest: dict[str, Any] = dict(learned.manifest)
         self.manifest["channels"] = int(learned.manifest["channels"]) + gate.window ** 2
         self.manifest["receptive_field"] = max(int(learned.manifest["receptive_field"]), gate.window)
 
     def image(self, image: np.ndarray) -> torch.Tensor:
         """uint8 (H, W, 3) -> the graph's input [1, 3, H, W] (the folder's input normalisation)."""
-        return (torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float() * self._gain
-                + self._offset)[None]
+        return torch.from_numpy(self.learned.input_batch(image))
 
     @torch.no_grad()
     def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -122,7 +122,8 @@ class FeatureTowers:
             self.manifest["name"], self.folder, self.providers, options.intra_op_num_threads,
         )
 
-    def _prepare(self, image: np.ndarray, side: str) -> np.ndarray:
+    def input_batch(self, image: np.ndarray, side: str = "image") -> np.ndarray:
+        """uint8 (H, W, 3) -> the graph's input [1, 3, H, W] float32 (the manifest's input normalisation)."""
         if not (isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3
                 and image.shape[2] == 3):
             raise ValueError(
@@ -154,8 +155,8 @@ class FeatureTowers:
                 f"left and right images differ in size: {getattr(left, 'shape', None)} vs "
                 f"{getattr(right, 'shape', None)}"
             )
-        left_batch = self._prepare(left, "left")
-        right_batch = self._prepare(right, "right")
+        left_batch = self.input_batch(left, "left")
+        right_batch = self.input_batch(right, "right")
         return self._run("left.onnx", left_batch), self._run("right.onnx", right_batch)
 
     def warmup(self) -> None:
@@ -182,8 +183,8 @@ class FeatureTowers:
                     f"{self.folder.name}/{name} outputs shape {declared}, but the manifest says "
                     f"channels {self.channels}"
                 )
-            base = self._run(name, self._prepare(image, "probe"))
-            moved = np.abs(self._run(name, self._prepare(changed, "probe")) - base).max(axis=0) > 0
+            base = self._run(name, self.input_batch(image, "probe"))
+            moved = np.abs(self._run(name, self.input_batch(changed, "probe")) - base).max(axis=0) > 0
             rows, columns = np.nonzero(moved)
             reach = int(max(np.abs(rows - centre).max(), np.abs(columns - centre).max())) if rows.size else 0
             if reach != halo:

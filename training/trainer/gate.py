@@ -57,7 +57,6 @@ def _uint8(images: torch.Tensor) -> np.ndarray:
     return (images * 255.0).round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
 
 
-
 def train_gate(run: GateRun, *, command: str) -> dict[str, Any]:
     """The training loop (``python -m training.gate``); returns what OUT/gate.json holds."""
     _check(run)
