@@ -80,6 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--vignetting", type=float, default=0.0, metavar="K",
                         help="synthetic data: per-view radial fall-off 1 - k r^2, k drawn from [0, K] "
                              "(default 0)")
+    parser.add_argument("--clean-views", type=float, default=0.0, metavar="P",
+                        help="synthetic data: render this share of the pairs without camera effects (no "
+                             "noise, blur, gain, gamma or JPEG; 8-bit only), so the towers also see views "
+                             "whose fine texture is signal (default 0; docs/training.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
@@ -196,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, rectification_error=args.rectification_error,
-                         vignetting=args.vignetting,
+                         vignetting=args.vignetting, clean_views=args.clean_views,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

@@ -25,7 +25,8 @@ class ExtraKind(NamedTuple):
 
 
 # This project's kinds that an extra provides: named in the SPEC help and in the error when it is missing.
-EXTRA_KINDS = {"synthetic": ExtraKind(extra="train", usage="synthetic[:N]")}
+EXTRA_KINDS = {"synthetic": ExtraKind(extra="train", usage="synthetic[:N]"),
+               "synthetic-clean": ExtraKind(extra="train", usage="synthetic-clean[:N]")}
 
 
 def registered() -> dict[str, importlib.metadata.EntryPoint]:

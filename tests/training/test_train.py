@@ -296,3 +296,26 @@ def test_the_data_levers_reach_the_generator_and_bad_values_are_refused(tmp_path
                  "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--cones", "",
                  "--vignetting", "-0.1", "--out", str(tmp_path)]) == 1
     assert "vignetting must be in [0, 1)" in capsys.readouterr().err
+
+
+def test_clean_views_render_that_share_of_the_same_scenes_without_camera_effects(tmp_path, capsys) -> None:
+    plain = TrainingData("synthetic", seed=5, spec=BatchSpec())
+    share = TrainingData("synthetic", seed=5, spec=BatchSpec(clean_views=0.3))
+    every = TrainingData("synthetic", seed=5, spec=BatchSpec(clean_views=1.0))
+    clean = []
+    for index in range(20):
+        (a, rng_a), (b, rng_b), (c, _) = plain.sample(index), share.sample(index), every.sample(index)
+        # Same scene and truth, and the same crop and augmentation draws: only the cameras change.
+        np.testing.assert_array_equal(a.disparity, b.disparity)
+        assert rng_a.random() == rng_b.random()
+        assert not np.array_equal(a.left, c.left)
+        clean.append(np.array_equal(b.left, c.left))
+        if not clean[-1]:
+            np.testing.assert_array_equal(a.left, b.left)
+    assert 2 <= sum(clean) <= 12  # a share of 0.3 of 20 draws
+    with pytest.raises(ValueError, match="clean views must be a share"):
+        BatchSpec(clean_views=1.5)
+    assert main(["--config", "9-4conv", "--channels", "4", "--shared", "--iterations", "1",
+                 "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--cones", "",
+                 "--clean-views", "-0.1", "--out", str(tmp_path)]) == 1
+    assert "clean views must be a share in [0, 1], got -0.1" in capsys.readouterr().err

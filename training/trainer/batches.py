@@ -43,12 +43,15 @@ class BatchSpec:
     nonoccluded_only: bool = True  # an occluded pixel has no match to learn (where the data set says so)
     rectification_error: bool = False  # synthetic: the right view slightly misaligned (Rectification())
     vignetting: float = 0.0        # synthetic: per-view radial fall-off drawn from [0, vignetting]
+    clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
             raise ValueError(f"augmentation must be one of {AUGMENTATIONS}, got {self.augmentation!r}")
         if not 0.0 <= self.vignetting < 1.0:
             raise ValueError(f"vignetting must be in [0, 1), got {self.vignetting}")
+        if not 0.0 <= self.clean_views <= 1.0:
+            raise ValueError(f"clean views must be a share in [0, 1], got {self.clean_views}")
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")
@@ -69,6 +72,7 @@ class TrainingData:
             height=spec.height, width=spec.width, max_disparity=spec.max_disparity,
             photometric=Photometric(vignetting=(0.0, spec.vignetting)),
             rectification=Rectification() if spec.rectification_error else None)
+        self.clean = dataclasses.replace(self.synthetic, photometric=None)
 
     @property
     def trained_range(self) -> list[int]:
@@ -79,8 +83,17 @@ class TrainingData:
         """Pair of example ``index`` and the generator that cuts and augments it."""
         rng = np.random.default_rng([self.seed, index])
         if self.pairs is None:
-            return generate(self.seed * SEED_STRIDE + index, self.synthetic), rng
+            return generate(self.seed * SEED_STRIDE + index, self._camera(index)), rng
         return self.pairs[int(rng.integers(len(self.pairs)))], rng
+
+    def _camera(self, index: int) -> SyntheticConfig:
+        """The generator config of synthetic example ``index``: with probability ``clean_views`` the same
+        scene without camera effects. The draw has its own stream, so the crops (and, at 0, everything)
+        stay those of a run without the lever."""
+        share = self.spec.clean_views
+        if share and np.random.default_rng([self.seed, index, 1]).random() < share:
+            return self.clean
+        return self.synthetic
 
     def crops(self, indices: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Dense batch: left, right [B, 3, h, w] in [0, 1] and disparity [B, h, w] (NaN unknown)."""

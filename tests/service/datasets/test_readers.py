@@ -14,7 +14,7 @@ from service.datasets import extensions, open_dataset
 from service.datasets.readers import KITTI_MAX_DISPARITY, detect_kind
 from service.io import write_disparity
 from training.data import photos
-from training.data.synthetic import open_validation_split
+from training.data.synthetic import open_clean_validation_split, open_validation_split
 
 HEIGHT, WIDTH = 6, 10
 
@@ -123,10 +123,30 @@ def test_synthetic_spec_is_the_validation_split():
     assert len(dataset) == 2 and dataset[1].name == "synthetic-1000000001"
 
 
-def test_synthetic_kind_is_the_train_extras_entry_point():
-    entry = extensions.registered()["synthetic"]
-    assert entry.value == "training.data.synthetic:open_validation_split"
-    assert entry.load() is open_validation_split
+@pytest.mark.torch
+def test_synthetic_clean_spec_is_the_same_scenes_without_camera_effects():
+    noisy, clean = open_dataset("synthetic:2"), open_dataset("synthetic-clean:2")
+    assert len(clean) == 2 and clean.name == "synthetic validation without camera effects (2 pairs)"
+    for a, b in zip(noisy, clean, strict=True):
+        assert a.name == b.name
+        np.testing.assert_array_equal(a.disparity, b.disparity)
+        assert not np.array_equal(a.left, b.left)
+    # Exact renders: a pixel seen by both views has the same colour in each (up to 8-bit rounding of the
+    # resampled paint), which no pair with camera effects keeps.
+    pair = clean[0]
+    y, x = np.nonzero(pair.nonoccluded & np.isfinite(pair.disparity))
+    xr = np.rint(x - pair.disparity[y, x]).astype(int)
+    exact = np.abs(pair.disparity[y, x] - np.rint(pair.disparity[y, x])) < 0.05
+    difference = np.abs(pair.left[y, x].astype(int) - pair.right[y, xr].astype(int))[exact]
+    assert difference.mean() < 1
+
+
+@pytest.mark.parametrize("kind, function", [("synthetic", open_validation_split),
+                                            ("synthetic-clean", open_clean_validation_split)])
+def test_synthetic_kinds_are_the_train_extras_entry_points(kind, function):
+    entry = extensions.registered()[kind]
+    assert entry.value == f"training.data.synthetic:{function.__name__}"
+    assert entry.load() is function
 
 
 @pytest.mark.parametrize("absence", ["no entry point", "no training package", "no scikit-image"])
@@ -153,6 +173,7 @@ def test_synthetic_without_the_train_extra_names_the_extra_in_one_line(monkeypat
     ("", "empty"),
     ("synthetic:zero", "positive"),
     ("synthetic:0", "positive"),
+    ("synthetic-clean:-3", "positive pair count, got '-3'"),
     ("kitti2015:", "needs the dataset folder"),
     ("sceneflow:/data", "expected synthetic"),
     ("/no/such/folder", "expected synthetic"),

@@ -5,9 +5,10 @@
 - ``photometric.py``: per-view camera effects (blur, gain, gamma, noise, JPEG)
 - ``generator.py``: a seed -> a ``service.datasets.StereoSample``; the fixed validation split
 
-The runtime reads the validation split as the dataset SPEC ``synthetic[:N]`` without importing
-``training``: pyproject.toml registers ``open_validation_split`` in the ``adsm.datasets`` entry-point
-group, which ``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
+The runtime reads the validation split as the dataset SPEC ``synthetic[:N]`` (``synthetic-clean[:N]``:
+the same scenes without camera effects) without importing ``training``: pyproject.toml registers
+``open_validation_split`` and ``open_clean_validation_split`` in the ``adsm.datasets`` entry-point group,
+which ``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
 """
 
 from .generator import (
@@ -17,6 +18,7 @@ from .generator import (
     SyntheticConfig,
     SyntheticStereo,
     generate,
+    open_clean_validation_split,
     open_validation_split,
     random_scene,
     validation_split,
@@ -25,5 +27,6 @@ from .photometric import Photometric, Rectification, apply_camera
 
 __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
            "Rectification",
-           "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate", "open_validation_split",
+           "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate",
+           "open_clean_validation_split", "open_validation_split",
            "random_scene", "validation_split"]

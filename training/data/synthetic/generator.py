@@ -82,10 +82,14 @@ class SyntheticStereo(Sequence[StereoSample]):
         return generate(self.first_seed + index % self.count, self.config)
 
 
-def validation_split(count: int = DEFAULT_VALIDATION_COUNT) -> SyntheticStereo:
-    """The first ``count`` pairs of the fixed synthetic validation split."""
-    split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=VALIDATION_CONFIG)
-    split.name = f"synthetic validation ({count} pairs)"
+def validation_split(count: int = DEFAULT_VALIDATION_COUNT, *,
+                     camera_effects: bool = True) -> SyntheticStereo:
+    """The first ``count`` pairs of the fixed synthetic validation split; ``camera_effects=False``: the same
+    scenes rendered exactly (8-bit only), the diagnostic that tells the scenes' difficulty from the
+    cameras' (docs/data.md)."""
+    config = VALIDATION_CONFIG if camera_effects else dataclasses.replace(VALIDATION_CONFIG, photometric=None)
+    split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=config)
+    split.name = f"synthetic validation{'' if camera_effects else ' without camera effects'} ({count} pairs)"
     return split
 
 
@@ -95,10 +99,19 @@ def open_validation_split(argument: str) -> SyntheticStereo:
     Raises ModuleNotFoundError now, before any pair is drawn, when scikit-image's photos are missing, so
     that ``adsm eval`` can name the extra to install.
     """
+    return validation_split(_pair_count(argument))
+
+
+def open_clean_validation_split(argument: str) -> SyntheticStereo:
+    """The dataset SPEC ``synthetic-clean[:N]``: the split's first N scenes without camera effects."""
+    return validation_split(_pair_count(argument), camera_effects=False)
+
+
+def _pair_count(argument: str) -> int:
     if argument and (not argument.isdigit() or int(argument) < 1):
-        raise ValueError("synthetic:N needs a positive pair count N")
+        raise ValueError(f"N must be a positive pair count, got {argument!r}")
     data_folder()
-    return validation_split(int(argument) if argument else DEFAULT_VALIDATION_COUNT)
+    return int(argument) if argument else DEFAULT_VALIDATION_COUNT
 
 
 def random_scene(rng: np.random.Generator, *, height: int, width: int, max_disparity: int,
