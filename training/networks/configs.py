@@ -119,9 +119,14 @@ _TABLE7 = (
 # The project's extension beside the paper's 29-45 px rows: small receptive fields that keep depth edges
 # sharp (a 3x3 NCC beats the 37-px towers at Cones' discontinuities: docs/training.md). 9-4conv is
 # MC-CNN-fast's geometry (four 3x3 convs); the deconv rows follow the paper's 1Deconv&4Conv pattern.
+# 7-5conv and 5-5conv are 11-5conv with its last 3x3 convs made 1x1: the same depth and width, so a
+# receptive-field ablation changes nothing else (down to a 3x3 NCC's 5 px of context and less).
 _SMALL = (
     *(_ruled(patch, deconvs, convs, table="project extension")
       for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4))),
+    *(TowerConfig(name=f"{patch}-5conv", patch=patch, deconv_kernels=(), conv_kernels=kernels,
+                  deconv_relu=False, table="project extension")
+      for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)))),
 )
 
 CONFIGS: dict[str, TowerConfig] = {config.name: config for config in _PRINTED + _TABLE7 + _SMALL}
