@@ -138,7 +138,7 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
-    # (--edge-weight and --vignetting are checked where they are used, NaN included.)
+    # (--edge-weight, --vignetting and --clean-views are checked where they are used, NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
               ("time-budget", args.time_budget, False))
     for name, value, positive in floats:
