@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import threading
 import time
 from collections.abc import Sequence
@@ -31,7 +30,7 @@ from service.aggregation import shiftable_windows
 from service.cost import VolumeWorkspace, cost_volume
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
-from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
+from service.features.tiles import tiled_features
 from service.features.towers import MAX_THREADS
 from service.filling import (
     BACKGROUND_RUN,
@@ -44,8 +43,9 @@ from service.filling import (
 from service.filtering import weighted_median
 from service.kernels import load_kernels_in_background
 from service.limits import LimitError, SearchRange, search_range
+from service.match_options import MatchOptions, StereoResult, colour_images
 from service.memory import MemoryPlan, plan_request
-from service.optimization import MAX_PENALTY, PATHS, aggregate
+from service.optimization import PATHS, aggregate
 from service.refinement import refine_subpixel
 from service.validation import Validity, inner_check
 from service.validation.confidence import cost_confidence, weigh_by_check
@@ -57,90 +57,6 @@ logger = logging.getLogger("adsm")
 
 class MemoryLimitError(LimitError):
     """The request's memory plan (service.memory) is over the matcher's limit; nothing was allocated."""
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class MatchOptions:
-    """Per-call settings; ``None`` takes the model manifest's value. Raises ValueError when out of range."""
-
-    max_disparity: int | None = None  # range size D; None -> manifest disparity.default_max, clipped to fit
-    p1: float | None = None  # None -> manifest sgm.p1 (whole cost units, see cost.scale; <= MAX_PENALTY)
-    p2: float | None = None  # None -> manifest sgm.p2
-    # Each cost the lowest of its row neighbours' (x +- 1) at the same disparity before SGM: windows that
-    # may shift off a depth edge (service.aggregation.shiftable_windows). None -> manifest
-    # sgm.shiftable_windows (absent: off), set where it measurably helps that model (docs/training.md).
-    shiftable_windows: bool | None = None
-    sgm: bool = True
-    adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
-    subpixel: bool = True
-    lr_check: bool = True
-    fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
-    # Rejected pixels filled leaning to the background (occlusions: the farthest of the first valid pixels
-    # to the left; mismatches: the lower tercile of the rays), not by MC-CNN's rules, which copy the
-    # fattened foreground into the holes: service/filling/rays.py.
-    background_fill: bool = True
-    border: bool = True  # give the left border band (match left of the right image) its surface's disparity
-    weighted_median: bool = True  # image-guided weighted median at depth edges (service.filtering)
-
-    # --- Issue 12 (range offset, confidence): kept apart from the pipeline switches above. ---
-    # The search range is [min_disparity, min_disparity + max_disparity), as OpenCV's minDisparity and
-    # numDisparities; negative values search matches right of the left pixel (service/limits.py).
-    min_disparity: int = 0
-    # Also return StereoResult.confidence (service/validation/confidence.py): one more pass over the volume.
-    confidence: bool = False
-
-    def __post_init__(self) -> None:
-        if isinstance(self.min_disparity, bool) or not isinstance(self.min_disparity, int | np.integer):
-            raise ValueError(f"min_disparity must be an integer, got {self.min_disparity!r}")
-        if self.max_disparity is not None:
-            if isinstance(self.max_disparity, bool) or not isinstance(self.max_disparity, int | np.integer):
-                raise ValueError(f"max_disparity must be an integer, got {self.max_disparity!r}")
-            if self.max_disparity < 1:
-                raise ValueError(f"max_disparity must be >= 1, got {self.max_disparity}")
-        for name in ("p1", "p2"):
-            value = getattr(self, name)
-            if value is not None and (
-                isinstance(value, bool) or not isinstance(value, int | float | np.number)
-                or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
-            ):
-                raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
-        if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
-            raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
-        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",
-                     "weighted_median", "confidence"):
-            if not isinstance(getattr(self, name), bool | np.bool_):
-                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
-
-
-@dataclasses.dataclass(frozen=True)
-class StereoResult:
-    disparity: np.ndarray  # float32 HxW, NaN where invalid and not filled
-    validity: np.ndarray  # uint8 HxW, Validity codes
-    timings: dict[str, float]  # seconds per stage, in pipeline order, then "total"
-    confidence: np.ndarray | None = None  # float32 HxW in [0, 1] with MatchOptions(confidence=True)
-
-
-def _colour_images(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Both images as uint8 (H, W, 3); grey (H, W) or (H, W, 1) arrays are expanded to three channels."""
-    images = []
-    for side, image in (("left", left), ("right", right)):
-        expected = f"{side} image must be a uint8 array of shape (H, W, 3), or (H, W) for grey"
-        if not isinstance(image, np.ndarray):
-            raise ValueError(f"{expected}, got {type(image).__name__}")
-        grey = image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 1)
-        if image.dtype != np.uint8 or not (grey or (image.ndim == 3 and image.shape[2] == 3)):
-            hint = " (scale 16-bit samples to 0..255 first: service.io.read_image does)" if (
-                image.dtype == np.uint16) else ""
-            raise ValueError(f"{expected}, got {image.dtype} {image.shape}{hint}")
-        if image.shape[0] < 1 or image.shape[1] < 1:
-            raise ValueError(f"{side} image is empty: shape {image.shape}")
-        if grey:
-            image = np.repeat(image.reshape(*image.shape[:2], 1), 3, axis=2)
-        images.append(image)
-    left, right = images
-    if left.shape != right.shape:
-        raise ValueError(f"left and right images differ in size: {left.shape[:2]} vs {right.shape[:2]}")
-    return left, right
 
 
 class Matcher:
@@ -242,29 +158,6 @@ class Matcher:
             self._preparing.pop().join()
         return time.perf_counter() - started
 
-    def _features(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tower features of both views, in tiles when one run would exceed the tower work budget."""
-        height, width = left.shape[:2]
-        halo = halo_of(self.manifest)
-        budget = TOWER_WORK_BYTES // work_bytes_per_pixel(self.manifest)
-        tiles = tower_tiles(height, width, halo, budget_pixels=budget)
-        if len(tiles) == 1:
-            return self.towers(left, right)
-        channels = int(self.manifest["channels"])
-        features = (np.empty((channels, height, width), np.float32), np.empty((channels, height, width),
-                                                                              np.float32))
-        for tile in tiles:
-            rows, columns = slice(tile.run_top, tile.run_bottom), slice(tile.run_left, tile.run_right)
-            part = self.towers(left[rows, columns], right[rows, columns])
-            keep_rows = slice(tile.keep_top - tile.run_top, tile.keep_bottom - tile.run_top)
-            keep_columns = slice(tile.keep_left - tile.run_left, tile.keep_right - tile.run_left)
-            for whole, piece in zip(features, part, strict=True):
-                whole[:, tile.keep_top:tile.keep_bottom, tile.keep_left:tile.keep_right] = piece[
-                    :, keep_rows, keep_columns
-                ]
-            del part
-        return features
-
     def uses_shiftable_windows(self, options: MatchOptions) -> bool:
         """Whether a call with ``options`` runs the shiftable-window step (None: the manifest's setting)."""
         if options.shiftable_windows is None:
@@ -310,7 +203,7 @@ class Matcher:
                 raise ValueError(f"unknown match option {unknown[0]!r}; MatchOptions has "
                                  + ", ".join(field.name for field in dataclasses.fields(MatchOptions)))
             options = dataclasses.replace(options, **settings)
-        left, right = _colour_images(left, right)
+        left, right = colour_images(left, right)
         width = left.shape[1]
         disparities = self.check_memory(left.shape[0], width, options).disparities
         offset = options.min_disparity
@@ -331,7 +224,7 @@ class Matcher:
             self._prepared()
             lap("prepare")
 
-        left_features, right_features = self._features(left, right)
+        left_features, right_features = tiled_features(self.towers, left, right)
         lap("towers")
         scale = float(self.manifest["cost"]["scale"])
         shape = (left.shape[0], width, disparities)

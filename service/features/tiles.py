@@ -15,6 +15,10 @@ import dataclasses
 import math
 from typing import Any
 
+import numpy as np
+
+from service.features.protocol import Towers
+
 # Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
 # every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
 # derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
@@ -125,3 +129,27 @@ def tower_tiles(height: int, width: int, halo: int, *, budget_pixels: int) -> li
         for rt, rb, kt, kb in _spans(height, rows, halo)
         for cl, cr, kl, kr in _spans(width, columns, halo)
     ]
+
+
+def tiled_features(towers: Towers, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Features [C, H, W] of both views, in tiles when one tower run would exceed :data:`TOWER_WORK_BYTES`
+    (the same features as one run on the whole pair)."""
+    manifest = towers.manifest
+    height, width = left.shape[:2]
+    budget = TOWER_WORK_BYTES // work_bytes_per_pixel(manifest)
+    tiles = tower_tiles(height, width, halo_of(manifest), budget_pixels=budget)
+    if len(tiles) == 1:
+        return towers(left, right)
+    channels = int(manifest["channels"])
+    features = (np.empty((channels, height, width), np.float32),
+                np.empty((channels, height, width), np.float32))
+    for tile in tiles:
+        rows, columns = slice(tile.run_top, tile.run_bottom), slice(tile.run_left, tile.run_right)
+        part = towers(left[rows, columns], right[rows, columns])
+        keep_rows = slice(tile.keep_top - tile.run_top, tile.keep_bottom - tile.run_top)
+        keep_columns = slice(tile.keep_left - tile.run_left, tile.keep_right - tile.run_left)
+        for whole, piece in zip(features, part, strict=True):
+            whole[:, tile.keep_top:tile.keep_bottom, tile.keep_left:tile.keep_right] = piece[:, keep_rows,
+                                                                                              keep_columns]
+        del part
+    return features

@@ -1,4 +1,4 @@
-"""Matcher: input validation, options, and end to end on a synthetic slanted plane with the baseline model."""
+"""Matcher: the checks of a call, options, and end to end on a synthetic slanted plane (default model)."""
 
 from __future__ import annotations
 
@@ -86,40 +86,10 @@ def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:
     assert matcher(tiny, tiny).disparity.shape == (1, 1)
 
 
-@pytest.mark.parametrize(
-    ("left", "right", "message"),
-    [
-        (np.zeros((8, 8, 3), np.float32), np.zeros((8, 8, 3), np.uint8), "left image must be a uint8"),
-        (np.zeros((8, 8), np.uint16), np.zeros((8, 8), np.uint16), "scale 16-bit samples"),
-        (np.zeros((8, 8, 2), np.uint8), np.zeros((8, 8, 2), np.uint8), "shape"),
-        (np.zeros((8, 8, 4), np.uint8), np.zeros((8, 8, 4), np.uint8), "shape"),
-        (np.zeros((8, 8, 3), np.uint8), [[0]], "right image"),
-        (np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8), "differ in size"),
-        (np.zeros((0, 8, 3), np.uint8), np.zeros((0, 8, 3), np.uint8), "empty"),
-    ],
-)
-def test_rejects_bad_images(matcher: Matcher, left, right, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        matcher(left, right)
-
-
-@pytest.mark.parametrize(
-    ("options", "message"),
-    [
-        ({"max_disparity": 0}, "max_disparity"),
-        ({"max_disparity": 2.5}, "max_disparity"),
-        ({"max_disparity": True}, "max_disparity"),
-        ({"p1": -1.0}, "p1"),
-        ({"p2": float("inf")}, "p2"),
-        ({"p2": "160"}, "p2"),
-        ({"p2": 4097.0}, "p2"),
-        ({"fill": "yes"}, "fill"),
-        ({"shiftable_windows": "yes"}, "shiftable_windows"),
-    ],
-)
-def test_rejects_bad_options(options: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
-        MatchOptions(**options)
+def test_rejects_a_bad_image_before_any_stage(matcher: Matcher) -> None:
+    # The cases are in tests/service/test_match_options.py (colour_images); here only that the call checks.
+    with pytest.raises(ValueError, match="differ in size"):
+        matcher(np.zeros((8, 8, 3), np.uint8), np.zeros((8, 9, 3), np.uint8))
 
 
 def test_rejects_options_of_another_type(matcher: Matcher) -> None:

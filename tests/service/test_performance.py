@@ -9,10 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service import matcher as matcher_module
 from service.features import FeatureTowers, default_model_dir, load_manifest
 from service.features import tiles as tiles_module
-from service.features.tiles import TOWER_WORK_BYTES, halo_of, tower_tiles, work_bytes_per_pixel
+from service.features.tiles import (
+    TOWER_WORK_BYTES,
+    halo_of,
+    tiled_features,
+    tower_tiles,
+    work_bytes_per_pixel,
+)
 from service.matcher import Matcher, MatchOptions
 from tests.helpers import ROOT
 
@@ -60,14 +65,14 @@ def test_tiled_features_equal_whole_image_features(monkeypatch, model):
     whole = matcher.towers(left, right)
     per_pixel = tiles_module.work_bytes_per_pixel(matcher.manifest)
     budget = 2 * (1 + 4 * halo) ** 2  # small tiles, with cores of a few pixels
-    monkeypatch.setattr(matcher_module, "TOWER_WORK_BYTES", per_pixel * budget)
+    monkeypatch.setattr(tiles_module, "TOWER_WORK_BYTES", per_pixel * budget)
     tiles = tower_tiles(height, width, halo, budget_pixels=budget)
     assert len({tile.run_top for tile in tiles}) > 2 and len({tile.run_left for tile in tiles}) > 2
-    tiled = matcher._features(left, right)
+    tiled = tiled_features(matcher.towers, left, right)
     for a, b in zip(whole, tiled, strict=True):
         np.testing.assert_allclose(b, a, atol=1e-5)
     result = matcher(left, right, MatchOptions(max_disparity=16))
-    monkeypatch.setattr(matcher_module, "TOWER_WORK_BYTES", 10**15)
+    monkeypatch.setattr(tiles_module, "TOWER_WORK_BYTES", 10**15)
     reference = matcher(left, right, MatchOptions(max_disparity=16))
     np.testing.assert_array_equal(result.validity, reference.validity)
     np.testing.assert_allclose(result.disparity, reference.disparity, atol=1e-3, equal_nan=True)
