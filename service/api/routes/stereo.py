@@ -4,15 +4,12 @@ a point cloud out."""
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
-from collections import Counter
 from collections.abc import Callable
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Depends, HTTPException, Query, Request
-from fastapi.dependencies.models import Dependant
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response
 from starlette.concurrency import run_in_threadpool
 
@@ -22,7 +19,6 @@ from service.api.inference import InferenceService, StereoMatch
 from service.api.pair_warnings import WARNING_HEADER
 from service.api.routes import geometry
 from service.api.routes.camera_query import (
-    MAX_OFFSET_PX,
     MAX_PRINCIPAL_PX,
     Files,
     Metric,
@@ -36,34 +32,10 @@ from service.api.routes.encoding import (
     server_timing,
     validity_png,
 )
-from service.filling import BACKGROUND_RUN
+from service.api.routes.stereo_query import Options, color_range, reject_unknown_query
 from service.io import encode_disparity, media_type
 from service.io.confidence import MEDIA_TYPES as CONFIDENCE_MEDIA_TYPES
 from service.io.confidence import encode_confidence
-from service.matcher import MatchOptions
-from service.optimization import MAX_PENALTY
-
-
-def _query_names(dependant: Dependant) -> set[str]:
-    names = {param.alias for param in dependant.query_params}
-    for dependency in dependant.dependencies:
-        names |= _query_names(dependency)
-    return names
-
-
-def reject_unknown_query(request: Request) -> None:
-    """A misspelt parameter is refused rather than ignored (which would silently apply the default), and
-    so is a repeated one (the last would silently win)."""
-    known = _query_names(request.scope["route"].dependant)
-    if unknown := sorted(set(request.query_params) - known):
-        raise HTTPException(
-            400, f"unknown query parameter '{unknown[0]}'; this route takes {', '.join(sorted(known))}"
-        )
-    # Counted in one pass: a query of thousands of repeats (names.count per name) cost seconds of CPU.
-    counts = Counter(name for name, _ in request.query_params.multi_items())
-    if repeated := sorted(name for name, count in counts.items() if count > 1):
-        raise HTTPException(400, f"query parameter '{repeated[0]}' is given more than once; give it once")
-
 
 router = APIRouter(tags=["stereo"], dependencies=[Depends(reject_unknown_query)])
 
@@ -98,8 +70,6 @@ _ERRORS = error_responses(400, 408, 413, 415, 503)
 
 Encoded = tuple[bytes, str, dict[str, str]]  # body, media type, extra headers
 
-# p1, p2: finite and at most SGM's own bound (service.optimization.MAX_PENALTY, 4096 cost units: 32 times
-# the shipped cost scale), so that no sum of int16 costs overflows.
 # Answer headers every stereo route may send (declared in the schema).
 _ANSWER_HEADERS: dict[str, Any] = {
     WARNING_HEADER: {
@@ -114,72 +84,6 @@ _ANSWER_HEADERS: dict[str, Any] = {
         "schema": {"type": "string"},
     },
 }
-
-
-def stereo_options(
-    max_disparity: Annotated[
-        int | None, Query(ge=1, description="Size of the search range: disparities min_disparity .. "
-                          "min_disparity + max_disparity - 1 (default: the model's, clipped to the width).")
-    ] = None,
-    min_disparity: Annotated[
-        int, Query(ge=-int(MAX_OFFSET_PX), le=int(MAX_OFFSET_PX),
-                   description="Start of the search range (as OpenCV's minDisparity; negative allowed). "
-                   "|min_disparity| < width and min_disparity + max_disparity <= width.")
-    ] = 0,
-    lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
-    fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
-                                       "default: lr_check).")] = None,
-    background_fill: Annotated[bool, Query(description="Fill rejected pixels leaning to the background: an "
-                                           f"occlusion from the farthest of the first {BACKGROUND_RUN} valid "
-                                           "pixels to its left, a mismatch from the lower tercile of its 16 "
-                                           "rays (false: MC-CNN's first pixel and median).")] = True,
-    subpixel: Annotated[bool, Query(description="Quadratic sub-pixel refinement.")] = True,
-    shiftable_windows: Annotated[bool | None, Query(description="Before SGM, each cost the lowest of its "
-                                                    "row neighbours' (x +- 1) at the same disparity: windows "
-                                                    "that can shift off a depth edge (default: the model's "
-                                                    "sgm.shiftable_windows).")] = None,
-    adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
-                                       "edges follow image edges.")] = True,
-    border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
-                                  "the right image) the disparity of the surface they continue.")] = True,
-    weighted_median: Annotated[bool, Query(description="Image-guided weighted median at depth edges, so "
-                                           "depth edges follow image edges.")] = True,
-    p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
-                                      description="SGM small-jump penalty (default: model's).")] = None,
-    p2: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
-                                      description="SGM large-jump penalty (default: model's).")] = None,
-) -> MatchOptions:
-    if fill and not lr_check:
-        # Filling fills what the check rejected: without the check it would silently do nothing.
-        raise HTTPException(400, "fill=true needs lr_check=true (filling fills the pixels the check rejects)")
-    try:
-        return MatchOptions(
-            max_disparity=max_disparity, min_disparity=min_disparity, lr_check=lr_check,
-            fill=lr_check if fill is None else fill, background_fill=background_fill,
-            subpixel=subpixel, shiftable_windows=shiftable_windows, border=border,
-            weighted_median=weighted_median, adaptive_p2=adaptive_p2,
-            p1=p1, p2=p2,
-        )
-    except ValueError as error:  # raised in a dependency it would otherwise end as a 500
-        raise HTTPException(400, str(error)) from None
-
-
-Options = Annotated[MatchOptions, Depends(stereo_options)]
-
-
-def color_range(text: str | None, format: str) -> tuple[float, float] | None:
-    """``colormap_range=low,high`` as two floats; HTTPException 400 unless it fits format=color."""
-    if text is None:
-        return None
-    if format != "color":
-        raise HTTPException(400, f"colormap_range applies to format=color only, not {format}")
-    low, high = (float(value) for value in text.split(","))  # the schema's pattern made them numbers
-    if not (math.isfinite(low) and math.isfinite(high) and max(abs(low), abs(high)) <= MAX_OFFSET_PX):
-        raise HTTPException(400, f"colormap_range {text}: both ends must be finite and within "
-                            f"+-{MAX_OFFSET_PX:g} pixels")
-    if not low < high:
-        raise HTTPException(400, f"colormap_range {text}: the low end must be below the high end")
-    return low, high
 
 
 def _service(request: Request) -> InferenceService:

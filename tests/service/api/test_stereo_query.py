@@ -1,0 +1,47 @@
+"""The stereo routes' query functions called directly: every refusal is an HTTPException 400, never a 500."""
+
+from __future__ import annotations
+
+import pytest
+from fastapi import HTTPException
+
+from service.api.routes.stereo_query import color_range, stereo_options
+from service.match_options import MatchOptions
+
+
+def test_stereo_options_build_match_options() -> None:
+    options = stereo_options(max_disparity=64, min_disparity=-4, lr_check=True, fill=None,
+                             background_fill=True, subpixel=False, shiftable_windows=None,
+                             adaptive_p2=True, border=True, weighted_median=False, p1=30.0, p2=360.0)
+    assert options == MatchOptions(max_disparity=64, min_disparity=-4, subpixel=False, weighted_median=False,
+                                   p1=30.0, p2=360.0)
+
+
+def test_fill_defaults_to_the_check_and_needs_it() -> None:
+    flags = dict(max_disparity=None, min_disparity=0, background_fill=True, subpixel=True,
+                 shiftable_windows=None, adaptive_p2=True, border=True, weighted_median=True,
+                 p1=None, p2=None)
+    assert stereo_options(lr_check=False, fill=None, **flags).fill is False
+    with pytest.raises(HTTPException) as refused:
+        stereo_options(lr_check=False, fill=True, **flags)
+    assert refused.value.status_code == 400 and "needs lr_check" in refused.value.detail
+
+
+@pytest.mark.parametrize("fmt", ["color", "png16"])
+def test_no_colormap_range_is_none(fmt: str) -> None:
+    assert color_range(None, fmt) is None
+
+
+@pytest.mark.parametrize(
+    ("text", "fmt", "message"),
+    [("0,10", "png16", "format=color only"), ("5,5", "color", "below the high end"),
+     ("0,1e9", "color", "within"), ("-inf,3", "color", "finite")],
+)
+def test_bad_colormap_ranges_are_refused(text: str, fmt: str, message: str) -> None:
+    with pytest.raises(HTTPException) as refused:
+        color_range(text, fmt)
+    assert refused.value.status_code == 400 and message in refused.value.detail
+
+
+def test_colormap_range_parses_two_numbers() -> None:
+    assert color_range("-2.5,40", "color") == (-2.5, 40.0)
