@@ -118,6 +118,7 @@ def test_request_limit_is_a_setting():
 _MEASURE = textwrap.dedent("""
     import json, sys
     import numpy as np
+    from service.features.tiles import tiled_features
     from service.matcher import Matcher, MatchOptions
     height, width, disparities, folder = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
     matcher = Matcher.from_folder(folder or None, threads=2)
@@ -129,7 +130,7 @@ _MEASURE = textwrap.dedent("""
     open("/proc/self/clear_refs", "w").write("5")
     towers_only = sys.argv[5] == "towers"
     if towers_only:
-        matcher._features(image, image)
+        tiled_features(matcher.towers, image, image)
     else:
         matcher(image, image, MatchOptions(max_disparity=disparities))
     status = open("/proc/self/status").read().split("VmHWM:")[1]
