@@ -44,8 +44,6 @@ def test_rejects_bad_options(options: dict, message: str) -> None:
         MatchOptions(**options)
 
 
-
-
 @pytest.mark.parametrize("shape", [(5, 7), (5, 7, 1)])
 def test_grey_images_become_three_equal_channels(shape: tuple[int, ...]) -> None:
     grey = np.arange(35, dtype=np.uint8).reshape(shape)

@@ -10,20 +10,17 @@ from service.match_options import MatchOptions
 
 
 def test_stereo_options_build_match_options() -> None:
-    options = stereo_options(max_disparity=64, min_disparity=-4, lr_check=True, fill=None,
-                             background_fill=True, subpixel=False, shiftable_windows=None,
-                             adaptive_p2=True, border=True, weighted_median=False, p1=30.0, p2=360.0)
+    # Annotated Query parameters keep plain defaults, so the dependency is callable as a function.
+    options = stereo_options(max_disparity=64, min_disparity=-4, subpixel=False, weighted_median=False,
+                             p1=30.0, p2=360.0)
     assert options == MatchOptions(max_disparity=64, min_disparity=-4, subpixel=False, weighted_median=False,
                                    p1=30.0, p2=360.0)
 
 
 def test_fill_defaults_to_the_check_and_needs_it() -> None:
-    flags = dict(max_disparity=None, min_disparity=0, background_fill=True, subpixel=True,
-                 shiftable_windows=None, adaptive_p2=True, border=True, weighted_median=True,
-                 p1=None, p2=None)
-    assert stereo_options(lr_check=False, fill=None, **flags).fill is False
+    assert stereo_options(lr_check=False).fill is False
     with pytest.raises(HTTPException) as refused:
-        stereo_options(lr_check=False, fill=True, **flags)
+        stereo_options(lr_check=False, fill=True)
     assert refused.value.status_code == 400 and "needs lr_check" in refused.value.detail
 
 
