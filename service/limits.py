@@ -144,7 +144,7 @@ class RequestLimits:
 
 
 def check_request(height: int, width: int, manifest: dict[str, Any], limits: RequestLimits, *,
-                  min_disparity: int = 0, max_disparity: int | None = None,
+                  min_disparity: int = 0, max_disparity: int | None = None, tower_scale: int = 1,
                   who: str = "this server") -> tuple[SearchRange, MemoryPlan]:
     """Every rule of a request on an ``height x width`` pair, from the image headers alone.
 
@@ -172,7 +172,7 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
             f"{who}'s limit of {limits.max_cost_cells}{limits._named('max_cost_cells')}; lower "
             "max_disparity or send smaller images"
         )
-    plan = plan_request(height, width, span.count, manifest)
+    plan = plan_request(height, width, span.count, manifest, scale=tower_scale)
     if limits.max_request_bytes is not None and plan.peak_bytes > limits.max_request_bytes:
         raise LimitError(
             f"{width} x {height} pixels x {span.count} disparities would need {plan.describe()}, over "
@@ -186,7 +186,15 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
                 f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
                 f"pixels (each side is padded by half the receptive field), over {who}'s limit of "
                 f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of the pixel limit); "
-                "images only a few pixels tall or wide cost far more than their size: send a less "
-                "elongated image"
+                + tower_work_advice(tower_scale)
             )
     return span, plan
+
+
+def tower_work_advice(tower_scale: int) -> str:
+    """What to change when a request's towers would compute too many padded pixels."""
+    if tower_scale > 1:
+        return (f"tower_scale {tower_scale} makes them compute {tower_scale ** 2} times the pixels: lower "
+                "tower_scale or send smaller images")
+    return ("images only a few pixels tall or wide cost far more than their size: send a less elongated "
+            "image")

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from service.features.scale import MAX_TOWER_SCALE
 from service.optimization import MAX_PENALTY
 
 __all__ = ["MatchOptions", "StereoResult", "colour_images"]
@@ -30,6 +31,10 @@ class MatchOptions:
     # may shift off a depth edge (service.aggregation.shiftable_windows). None -> manifest
     # sgm.shiftable_windows (absent: off), set where it measurably helps that model (docs/training.md).
     shiftable_windows: bool | None = None
+    # The towers run on the pair upsampled by this integer factor, so each feature sees 1/scale of its
+    # receptive field in image pixels (service/features/scale.py): sharper depth edges on clean, densely
+    # textured images, worse on noisy or weakly textured ones; costs ~scale^2 the towers' time and memory.
+    tower_scale: int = 1
     sgm: bool = True
     adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
     subpixel: bool = True
@@ -57,6 +62,10 @@ class MatchOptions:
                 raise ValueError(f"max_disparity must be an integer, got {self.max_disparity!r}")
             if self.max_disparity < 1:
                 raise ValueError(f"max_disparity must be >= 1, got {self.max_disparity}")
+        if (isinstance(self.tower_scale, bool) or not isinstance(self.tower_scale, int | np.integer)
+                or not 1 <= self.tower_scale <= MAX_TOWER_SCALE):
+            raise ValueError(f"tower_scale must be an integer in 1..{MAX_TOWER_SCALE}, "
+                             f"got {self.tower_scale!r}")
         for name in ("p1", "p2"):
             value = getattr(self, name)
             if value is not None and (

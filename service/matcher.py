@@ -1,7 +1,7 @@
 """Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
 
-    towers -> cost_volume -> shiftable_windows -> sgm -> disparity (WTA) -> subpixel -> lr_check (inner check)
-    -> fill -> border -> weighted_median
+    towers (at the tower scale) -> cost_volume -> shiftable_windows -> sgm -> disparity (WTA) -> subpixel
+    -> lr_check (inner check) -> fill -> border -> weighted_median
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
@@ -173,7 +173,8 @@ class Matcher:
     def plan(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
         """Peak memory of a call on an ``height x width`` pair (service/memory.py), before any allocation."""
         options = MatchOptions() if options is None else options
-        return plan_request(height, width, self.search_range(width, options).count, self.manifest)
+        return plan_request(height, width, self.search_range(width, options).count, self.manifest,
+                            scale=options.tower_scale)
 
     def check_memory(self, height: int, width: int, options: MatchOptions | None = None) -> MemoryPlan:
         """The plan of a call; raise :class:`MemoryLimitError` when it is over ``max_request_bytes``."""
@@ -224,7 +225,7 @@ class Matcher:
             self._prepared()
             lap("prepare")
 
-        left_features, right_features = tiled_features(self.towers, left, right)
+        left_features, right_features = tiled_features(self.towers, left, right, scale=options.tower_scale)
         lap("towers")
         scale = float(self.manifest["cost"]["scale"])
         shape = (left.shape[0], width, disparities)

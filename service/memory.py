@@ -4,10 +4,12 @@ Terms (bytes; ``P = H * W``, ``C`` channels, ``halo`` = receptive field // 2):
 
 - ``images``: the two decoded uint8 images, ``2 * 3 * P``;
 - ``features``: both views' float32 feature maps, ``2 * 4 * C * P``, plus one tile's outputs and its
-  two float32 input batches while the towers run;
+  two float32 input batches while the towers run (at a tower scale ``s > 1``, service/features/scale.py,
+  those of the tile upsampled, ``s^2`` times its pixels, and its upsampled uint8 views);
 - ``tower_work``: ONNX Runtime's work area for the largest tile, ``bytes_per_padded_pixel x (h + 2 halo)
-  x (w + 2 halo)`` (service/features/tiles.py); the arena keeps it after the run, but never more than
-  :data:`~service.features.tiles.TOWER_WORK_BYTES`, whatever the image's shape;
+  x (w + 2 halo)`` of its run, upsampled at a tower scale > 1 (service/features/tiles.py); the arena
+  keeps it after the run, but never more than :data:`~service.features.tiles.TOWER_WORK_BYTES`, whatever
+  the image's shape;
 - ``volumes``: the raw and the aggregated int16 cost volume, ``4 * P * D`` (kept between requests at the
   largest size served, so never more than ``4 x ADSM_MAX_COST_CELLS``);
 - ``results``: winners, disparity, validity, the filling's copies and the encoded answer (a point cloud
@@ -24,7 +26,8 @@ import dataclasses
 import math
 from typing import Any
 
-from service.features.tiles import TOWER_WORK_BYTES, Tile, halo_of, tower_tiles, work_bytes_per_pixel
+from service.features.scale import upsampled_size
+from service.features.tiles import TOWER_WORK_BYTES, Tile, halo_of, tower_plan, work_bytes_per_pixel
 
 # Per pixel after the volumes: int32 left/right winners (8), float32 sub-pixel and filled disparity (8),
 # validity and its copy (2), and the answer: a point cloud's int64 row/column indices (16), its float32
@@ -71,27 +74,32 @@ class MemoryPlan:
         return f"{_mib(self.peak_bytes)} ({terms}; {len(self.tiles)} tower tiles)"
 
 
-def plan_request(height: int, width: int, disparities: int, manifest: dict[str, Any]) -> MemoryPlan:
-    """The memory plan of matching an ``height x width`` pair over ``disparities`` with this model."""
+def plan_request(height: int, width: int, disparities: int, manifest: dict[str, Any], *,
+                 scale: int = 1) -> MemoryPlan:
+    """The memory plan of matching an ``height x width`` pair over ``disparities`` with this model, its
+    towers run at ``scale`` (service/features/scale.py)."""
     channels = int(manifest["channels"])
     halo = halo_of(manifest)
     per_pixel = work_bytes_per_pixel(manifest)
-    tiles = tuple(tower_tiles(height, width, halo, budget_pixels=TOWER_WORK_BYTES // per_pixel))
-    largest = max(tiles, key=lambda tile: tile.padded_pixels(halo))
-    run_pixels = (largest.run_bottom - largest.run_top) * (largest.run_right - largest.run_left)
+    tiles = tuple(tower_plan(height, width, manifest, scale=scale))
+    largest = max(tiles, key=lambda tile: tile.padded_pixels(halo, scale))
+    run_pixels = (upsampled_size(largest.run_bottom - largest.run_top, scale)
+                  * upsampled_size(largest.run_right - largest.run_left, scale))
     pixels = height * width
     whole = 2 * _FLOAT32 * channels * pixels
-    # One tile's two outputs and two input batches exist beside the whole maps (none when untiled).
-    tile_buffers = 0 if len(tiles) == 1 else 2 * _FLOAT32 * (channels + 3) * run_pixels
+    # One run's two float32 input batches, and its two outputs beside the whole maps unless they are the
+    # whole maps (one tile at scale 1); upsampled, its two uint8 inputs and one view's float32 working copy.
+    run_outputs = 0 if len(tiles) == 1 and scale == 1 else 2 * _FLOAT32 * channels * run_pixels
+    upsampling = 0 if scale == 1 else (2 * 3 + _FLOAT32 * 3) * run_pixels
     return MemoryPlan(
         height=height, width=width, disparities=disparities,
         images=2 * 3 * pixels,
-        features=whole + tile_buffers + (2 * _FLOAT32 * 3 * run_pixels if len(tiles) == 1 else 0),
-        tower_work=per_pixel * largest.padded_pixels(halo),
+        features=whole + run_outputs + 2 * _FLOAT32 * 3 * run_pixels + upsampling,
+        tower_work=per_pixel * largest.padded_pixels(halo, scale),
         volumes=2 * _COST_CELL * pixels * disparities,
         results=RESULT_BYTES_PER_PIXEL * pixels,
         tiles=tiles,
-        work_pixels=sum(tile.padded_pixels(halo) for tile in tiles),
+        work_pixels=sum(tile.padded_pixels(halo, scale) for tile in tiles),
     )
 
 
@@ -112,7 +120,8 @@ def memory_bound(manifest: dict[str, Any], *, max_pixels: int, max_cost_cells: i
     channels = int(manifest["channels"])
     tile_pixels = TOWER_WORK_BYTES // work_bytes_per_pixel(manifest)
     transient = (6 + 2 * _FLOAT32 * channels + RESULT_BYTES_PER_PIXEL) * max_pixels
-    tile_buffers = 2 * _FLOAT32 * (channels + 3) * tile_pixels
+    # A run's outputs and inputs are in its padded work area's pixels, bounded whatever the tower scale.
+    tile_buffers = (2 * _FLOAT32 * (channels + 3) + 2 * 3 + _FLOAT32 * 3) * tile_pixels
     return 2 * _COST_CELL * max_cost_cells + TOWER_WORK_BYTES + transient + tile_buffers
 
 

@@ -44,7 +44,7 @@ from service.api.refusals import (
 from service.api.settings import Settings
 from service.calibration import StereoCalibration
 from service.io import image_size, read_image
-from service.limits import DisparityRangeError, LimitError
+from service.limits import DisparityRangeError, LimitError, tower_work_advice
 from service.matcher import Matcher, MatchOptions, StereoResult
 from service.memory import TOWER_WORK_FACTOR, tower_work_limit
 from service.protocols import StereoMatcher
@@ -212,8 +212,7 @@ class InferenceService:
                 f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
                 f"pixels (each side is padded by half the receptive field), over this server's limit of "
                 f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of ADSM_MAX_PIXELS); "
-                "images only a few pixels tall or wide cost far more than their size: send a less "
-                "elongated image"
+                + tower_work_advice(options.tower_scale)
             )
 
     def _pair_size(self, left_bytes: bytes, right_bytes: bytes) -> tuple[int, int]:

@@ -31,11 +31,15 @@ MODEL_STEPS = {
 
 
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
-    """``--min-disparity``, ``--p1``, ``--p2``, a ``--no-<step>`` flag for each of ``steps`` (keys of
-    STEP_SWITCHES) and a ``--<step>`` / ``--no-<step>`` pair for each of MODEL_STEPS."""
+    """``--min-disparity``, ``--tower-scale``, ``--p1``, ``--p2``, a ``--no-<step>`` flag for each of
+    ``steps`` (keys of STEP_SWITCHES) and a ``--<step>`` / ``--no-<step>`` pair for each of MODEL_STEPS."""
     add("--min-disparity", type=int, default=0, metavar="M",
         help="smallest disparity searched: the range is [M, M + D) with D from --max-disparity "
         "(as OpenCV's minDisparity; default 0, negative allowed)")
+    add("--tower-scale", type=int, default=1, metavar="S",
+        help="run the feature towers on the pair upsampled by the integer S: sharper depth edges "
+        "on clean, densely textured images (Middlebury-like), worse on noisy or weakly textured ones; "
+        "~S^2 times the towers' time (default 1; docs/service.md, \"Tower scale\")")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
     for step in steps:
@@ -51,5 +55,5 @@ def match_options(args: argparse.Namespace) -> Any:
 
     switches: dict[str, Any] = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
     switches.update({step: getattr(args, step, None) for step in MODEL_STEPS})  # None: the model's
-    return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity, p1=args.p1,
-                        p2=args.p2, **switches)
+    return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity,
+                        tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches)

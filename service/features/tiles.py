@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from service.features.protocol import Towers
+from service.features.scale import scaled_halo, upsample, upsampled_size
 
 # Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
 # every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
@@ -49,9 +50,11 @@ class Tile:
     keep_left: int
     keep_right: int
 
-    def padded_pixels(self, halo: int) -> int:
-        """The run's work area inside the graph, which pads ``halo`` pixels on every side."""
-        return (self.run_bottom - self.run_top + 2 * halo) * (self.run_right - self.run_left + 2 * halo)
+    def padded_pixels(self, halo: int, scale: int = 1) -> int:
+        """The run's work area inside the graph, which pads ``halo`` pixels on every side of the run
+        upsampled by ``scale`` (service/features/scale.py)."""
+        return ((upsampled_size(self.run_bottom - self.run_top, scale) + 2 * halo)
+                * (upsampled_size(self.run_right - self.run_left, scale) + 2 * halo))
 
 
 def work_bytes_per_pixel(manifest: dict[str, Any]) -> int:
@@ -131,21 +134,28 @@ def tower_tiles(height: int, width: int, halo: int, *, budget_pixels: int) -> li
     ]
 
 
-def tiled_features(towers: Towers, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tower_plan(height: int, width: int, manifest: dict[str, Any], *, scale: int = 1) -> list[Tile]:
+    """The tiles the towers run on for an ``height x width`` pair at this tower scale
+    (service/features/scale.py): tiles of the image whose upsampled runs each fit the work budget."""
+    budget = TOWER_WORK_BYTES // work_bytes_per_pixel(manifest) // scale**2
+    return tower_tiles(height, width, scaled_halo(halo_of(manifest), scale), budget_pixels=budget)
+
+
+def tiled_features(towers: Towers, left: np.ndarray, right: np.ndarray, *,
+                   scale: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Features [C, H, W] of both views, in tiles when one tower run would exceed :data:`TOWER_WORK_BYTES`
-    (the same features as one run on the whole pair)."""
+    (the same features as one run on the whole pair), the towers run on each tile upsampled by ``scale``."""
     manifest = towers.manifest
     height, width = left.shape[:2]
-    budget = TOWER_WORK_BYTES // work_bytes_per_pixel(manifest)
-    tiles = tower_tiles(height, width, halo_of(manifest), budget_pixels=budget)
+    tiles = tower_plan(height, width, manifest, scale=scale)
     if len(tiles) == 1:
-        return towers(left, right)
+        return _run(towers, left, right, scale)
     channels = int(manifest["channels"])
     features = (np.empty((channels, height, width), np.float32),
                 np.empty((channels, height, width), np.float32))
     for tile in tiles:
         rows, columns = slice(tile.run_top, tile.run_bottom), slice(tile.run_left, tile.run_right)
-        part = towers(left[rows, columns], right[rows, columns])
+        part = _run(towers, left[rows, columns], right[rows, columns], scale)
         keep_rows = slice(tile.keep_top - tile.run_top, tile.keep_bottom - tile.run_top)
         keep_columns = slice(tile.keep_left - tile.run_left, tile.keep_right - tile.run_left)
         for whole, piece in zip(features, part, strict=True):
@@ -153,3 +163,12 @@ def tiled_features(towers: Towers, left: np.ndarray, right: np.ndarray) -> tuple
                                                                                               keep_columns]
         del part
     return features
+
+
+def _run(towers: Towers, left: np.ndarray, right: np.ndarray, scale: int) -> tuple[np.ndarray, np.ndarray]:
+    """One tower run on the pair upsampled by ``scale``, its features kept at the pair's own pixels."""
+    if scale == 1:
+        return towers(left, right)
+    left_features, right_features = towers(upsample(left, scale), upsample(right, scale))
+    return (np.ascontiguousarray(left_features[:, ::scale, ::scale]),
+            np.ascontiguousarray(right_features[:, ::scale, ::scale]))

@@ -79,13 +79,16 @@ def test_bench_reports_bad_arguments_and_files_in_one_line(capsys):
     # runs: these used to run and report success, or fail only after the whole benchmark.
     for argv in (["synthetic", "--pairs", "0"], ["load", "--duration", "-1"], ["load", "--clients", "0"],
                  ["temperature", "--steps", "-1"], ["runtime", "--channels", "0"],
-                 ["towers", "--repeats", "0"], ["memory", "--threads", "0"], ["load", "--duration", "nan"]):
+                 ["towers", "--repeats", "0"], ["memory", "--threads", "0"], ["load", "--duration", "nan"],
+                 ["tower_scale", "--repeats", "0"]):
         with pytest.raises(SystemExit) as exit_code:
             bench_main(argv)
         assert exit_code.value.code == 2, argv
         err = capsys.readouterr().err
         assert f"argument {argv[1]}: expected a" in err and "Traceback" not in err, err
-
+    with pytest.raises(SystemExit) as exit_code:
+        bench_main(["tower_scale", "--scales", "1", "9"])
+    assert exit_code.value.code == 2 and "every scale must be in 1..4" in capsys.readouterr().err
 
 
 def test_int8_calibration_refuses_tiny_images_and_a_failure_leaves_no_half_folder(tmp_path, monkeypatch):

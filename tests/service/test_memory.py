@@ -128,20 +128,21 @@ _MEASURE = textwrap.dedent("""
     # Reset the high-water mark: Numba's compilation in warmup (no cache in a fresh process) peaks far
     # above what a call needs, and ru_maxrss would keep that peak.
     open("/proc/self/clear_refs", "w").write("5")
-    towers_only = sys.argv[5] == "towers"
+    towers_only, scale = sys.argv[5] == "towers", int(sys.argv[6])
     if towers_only:
-        tiled_features(matcher.towers, image, image)
+        tiled_features(matcher.towers, image, image, scale=scale)
     else:
-        matcher(image, image, MatchOptions(max_disparity=disparities))
+        matcher(image, image, MatchOptions(max_disparity=disparities, tower_scale=scale))
     status = open("/proc/self/status").read().split("VmHWM:")[1]
     peak = int(status.split()[0]) * 1024
     print(json.dumps({"growth": peak - rss}))
 """)
 
 
-def _growth(height: int, width: int, disparities: int, folder: str = "", what: str = "match") -> int:
+def _growth(height: int, width: int, disparities: int, folder: str = "", what: str = "match",
+            scale: int = 1) -> int:
     out = subprocess.run(
-        [sys.executable, "-c", _MEASURE, str(height), str(width), str(disparities), folder, what],
+        [sys.executable, "-c", _MEASURE, str(height), str(width), str(disparities), folder, what, str(scale)],
         capture_output=True, text=True, check=True, timeout=600,
     )
     return json.loads(out.stdout.strip().splitlines()[-1])["growth"]
@@ -153,6 +154,16 @@ def test_thin_image_peak_stays_within_its_plan(height, width):
     # Before tiles, 8 x 32768 alone took 1.5 GiB in the towers (8 x 262144: 12.5 GiB in the service).
     plan = plan_request(height, width, 1, load_manifest(default_model_dir()))
     growth = _growth(height, width, 1)
+    assert growth <= plan.peak_bytes, (growth / 2**20, plan.describe())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("height", "width", "tiled"), [(200, 600, False), (1080, 1920, True)])
+def test_peak_at_tower_scale_two_stays_within_its_plan(height, width, tiled):
+    # The upsampled runs (one whole run, or tiles at 1080p) and their outputs are in the plan.
+    plan = plan_request(height, width, 64, load_manifest(default_model_dir()), scale=2)
+    assert (len(plan.tiles) > 1) == tiled
+    growth = _growth(height, width, 64, scale=2)
     assert growth <= plan.peak_bytes, (growth / 2**20, plan.describe())
 
 

@@ -11,6 +11,7 @@ from fastapi import Depends, HTTPException, Query, Request
 from fastapi.dependencies.models import Dependant
 
 from service.api.routes.camera_query import MAX_OFFSET_PX
+from service.features.scale import MAX_TOWER_SCALE
 from service.filling import BACKGROUND_RUN
 from service.match_options import MatchOptions
 from service.optimization import MAX_PENALTY
@@ -61,6 +62,10 @@ def stereo_options(
                                                     "row neighbours' (x +- 1) at the same disparity: windows "
                                                     "that can shift off a depth edge (default: the model's "
                                                     "sgm.shiftable_windows).")] = None,
+    tower_scale: Annotated[int, Query(ge=1, le=MAX_TOWER_SCALE, description="Run the feature towers on the "
+                                      "pair upsampled by this factor: sharper depth edges on clean, densely "
+                                      "textured images, worse on noisy or weakly textured ones; about "
+                                      "tower_scale^2 times the towers' time.")] = 1,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
@@ -79,7 +84,7 @@ def stereo_options(
         return MatchOptions(
             max_disparity=max_disparity, min_disparity=min_disparity, lr_check=lr_check,
             fill=lr_check if fill is None else fill, background_fill=background_fill,
-            subpixel=subpixel, shiftable_windows=shiftable_windows, border=border,
+            subpixel=subpixel, shiftable_windows=shiftable_windows, tower_scale=tower_scale, border=border,
             weighted_median=weighted_median, adaptive_p2=adaptive_p2,
             p1=p1, p2=p2,
         )

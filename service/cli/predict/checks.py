@@ -46,7 +46,7 @@ def check_size(size: tuple[int, int], manifest: dict[str, Any], limits: RequestL
                options: MatchOptions) -> tuple[int, int]:
     """``size`` (height, width) once a pair of that size passes the server's rules (see above)."""
     check_request(*size, manifest, limits, min_disparity=options.min_disparity,
-                  max_disparity=options.max_disparity, who="adsm predict")
+                  max_disparity=options.max_disparity, tower_scale=options.tower_scale, who="adsm predict")
     return size
 
 

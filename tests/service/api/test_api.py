@@ -243,6 +243,21 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     assert not np.array_equal(await disparity(shiftable_windows="true"), banded)
 
 
+async def test_tower_scale_matches_in_image_pixels_within_the_work_limit(client: httpx.AsyncClient) -> None:
+    # The towers on the pair upsampled by 2: the same shift, in the image's pixels.
+    left, right = (image[:HEIGHT // 2, :WIDTH // 2] for image in (LEFT, RIGHT))
+    half = {"left": ("l.png", png(left), "image/png"), "right": ("r.png", png(right), "image/png")}
+    params = {"max_disparity": 16, "format": "npy"}
+    plain = await client.post("/disparity", params=params, files=half)
+    scaled = await client.post("/disparity", params=params | {"tower_scale": 2}, files=half)
+    assert plain.status_code == scaled.status_code == 200, scaled.text
+    assert not np.array_equal(npy(scaled), npy(plain))
+    assert np.mean(np.abs(npy(scaled)[8:-8, 16:-8] - SHIFT) <= 1) > 0.95
+    # At the pixel limit, 4 x the towers' work is over the server's work limit: refused, saying why.
+    assert_error(await client.post("/disparity", params=params | {"tower_scale": 2}, files=PAIR), 413,
+                 "lower tower_scale")
+
+
 # --- POST /depth and /pointcloud ----------------------------------------------------------------------------
 
 FOCAL, BASELINE = 200.0, 0.1  # z = 0.1 * 200 / 4 = 5 m
@@ -326,6 +341,9 @@ def assert_error(response: httpx.Response, status: int, *fragments: str) -> None
         ("/disparity", {"format": "jpeg"}, "format"),
         ("/disparity", {"lr_check": "maybe"}, "lr_check"),
         ("/disparity", {"p2": -1}, "p2"),
+        ("/disparity", {"tower_scale": 0}, "tower_scale"),
+        ("/disparity", {"tower_scale": 5}, "tower_scale"),
+        ("/disparity", {"tower_scale": 1.5}, "tower_scale"),
         ("/disparity", {"max_disparity": 64}, "ADSM_MAX_DISPARITY"),
         ("/depth", {"baseline_m": 0.1}, "focal_px"),
         ("/depth", {"focal_px": -5, "baseline_m": 0.1}, "focal_px"),

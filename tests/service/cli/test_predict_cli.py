@@ -137,9 +137,21 @@ def test_timings_and_validity_and_switches(capsys, pair, tmp_path):
     assert (codes == 0).mean() > 0.5
 
 
-def test_bad_option_values(capsys, pair, tmp_path):
-    code, _, err = _run(capsys, *map(str, pair), "-o", str(tmp_path / "d.png"), "--max-disparity", "0")
+@pytest.mark.parametrize("flags", [("--max-disparity", "0"), ("--tower-scale", "9")])
+def test_bad_option_values(capsys, pair, tmp_path, flags):
+    code, _, err = _run(capsys, *map(str, pair), "-o", str(tmp_path / "d.png"), *flags)
     _assert_one_line_error(code, err)
+    assert flags[0][2:].replace("-", "_") in err
+
+
+def test_tower_scale_runs_the_towers_on_the_upsampled_pair(capsys, pair, tmp_path):
+    outputs = [tmp_path / "d1.npy", tmp_path / "d2.npy"]
+    for scale, out in zip(("1", "2"), outputs, strict=True):
+        code, _, err = _run(capsys, *map(str, pair), "-o", str(out), "--max-disparity", "16",
+                            "--tower-scale", scale)
+        assert code == 0, err
+    one, two = (np.load(out) for out in outputs)
+    assert one.shape == two.shape == (40, 80) and not np.array_equal(one, two)
 
 
 # --- calibration, metric outputs, many pairs, 16-bit input, diagnostics (issue 12) ---
