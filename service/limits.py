@@ -9,7 +9,9 @@ is refused. Only the model's default size is clipped to fit, since the caller di
 
 **Size limits.** :class:`RequestLimits` holds the defaults the server and the CLI share (the server reads
 them from ``ADSM_*`` variables, the CLI from the same variables or its flags). :func:`check_request` applies
-them to an image size and a search range, before any pixel is decoded; ``None`` turns a limit off.
+them to an image size and a search range, before any pixel is decoded (the service, whose matcher makes
+its own plan, applies :func:`check_range_size` and :func:`check_plan`, the same rules); ``None`` turns a
+limit off.
 Errors: :class:`DisparityRangeError` (a bad range: HTTP 400) and :class:`LimitError` (over a limit: 413).
 """
 
@@ -157,25 +159,39 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
             f"{width} x {height} = {height * width} pixels exceeds {who}'s limit of {limits.max_pixels}"
             f"{limits._named('max_pixels')}; send smaller images"
         )
+    check_range_size(max_disparity, limits, who=who)
+    span = search_range(width, min_disparity=min_disparity, max_disparity=max_disparity,
+                        default_max=int(manifest["disparity"]["default_max"]))
+    plan = plan_request(height, width, span.count, manifest, scale=tower_scale)
+    check_plan(plan, manifest, limits, tower_scale=tower_scale, who=who)
+    return span, plan
+
+
+def check_range_size(max_disparity: int | None, limits: RequestLimits, *, who: str = "this server") -> None:
+    """:class:`DisparityRangeError` when a requested range size is over the limit's ceiling."""
     ceiling = limits.max_disparity
     if max_disparity is not None and ceiling is not None and max_disparity > ceiling:
         raise DisparityRangeError(
             f"max_disparity {max_disparity} exceeds {who}'s limit of {ceiling}"
             f"{limits._named('max_disparity')}"
         )
-    span = search_range(width, min_disparity=min_disparity, max_disparity=max_disparity,
-                        default_max=int(manifest["disparity"]["default_max"]))
-    cells = height * width * span.count
+
+
+def check_plan(plan: MemoryPlan, manifest: dict[str, Any], limits: RequestLimits, *, tower_scale: int = 1,
+               who: str = "this server") -> None:
+    """The limits on a request's memory plan (service/memory.py, from any matcher's ``plan``): cost-volume
+    cells, peak bytes and the towers' work; :class:`LimitError` with what to change."""
+    height, width, disparities = plan.height, plan.width, plan.disparities
+    cells = height * width * disparities
     if limits.max_cost_cells is not None and cells > limits.max_cost_cells:
         raise LimitError(
-            f"{width} x {height} pixels x {span.count} disparities = {cells} cost-volume cells exceeds "
+            f"{width} x {height} pixels x {disparities} disparities = {cells} cost-volume cells exceeds "
             f"{who}'s limit of {limits.max_cost_cells}{limits._named('max_cost_cells')}; lower "
             "max_disparity or send smaller images"
         )
-    plan = plan_request(height, width, span.count, manifest, scale=tower_scale)
     if limits.max_request_bytes is not None and plan.peak_bytes > limits.max_request_bytes:
         raise LimitError(
-            f"{width} x {height} pixels x {span.count} disparities would need {plan.describe()}, over "
+            f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, over "
             f"{who}'s limit of {limits.max_request_bytes / 2**20:.0f} MiB per request"
             f"{limits._named('max_request_bytes')}; send smaller images or lower max_disparity"
         )
@@ -185,10 +201,9 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
             raise LimitError(
                 f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
                 f"pixels (each side is padded by half the receptive field), over {who}'s limit of "
-                f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of the pixel limit); "
-                + tower_work_advice(tower_scale)
+                f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of the pixel limit"
+                f"{limits._named('max_pixels')}); " + tower_work_advice(tower_scale)
             )
-    return span, plan
 
 
 def tower_work_advice(tower_scale: int) -> str:

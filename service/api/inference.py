@@ -44,9 +44,8 @@ from service.api.refusals import (
 from service.api.settings import Settings
 from service.calibration import StereoCalibration
 from service.io import image_size, read_image
-from service.limits import DisparityRangeError, LimitError, tower_work_advice
+from service.limits import RequestLimits, check_plan, check_range_size
 from service.matcher import Matcher, MatchOptions, StereoResult
-from service.memory import TOWER_WORK_FACTOR, tower_work_limit
 from service.protocols import StereoMatcher
 
 logger = logging.getLogger("service.api")
@@ -73,6 +72,9 @@ class InferenceService:
 
     def __init__(self, settings: Settings, *, matcher: StereoMatcher | None = None) -> None:
         self.settings = settings
+        self.limits = RequestLimits(max_pixels=settings.max_pixels, max_disparity=settings.max_disparity,
+                                    max_cost_cells=settings.max_cost_cells,
+                                    max_request_bytes=settings.max_request_bytes)
         self.slot = InferenceSlot(queue_size=settings.queue_size)
         self.metrics = ServiceMetrics(self.slot)
         self.matcher: StereoMatcher | None = matcher
@@ -183,37 +185,12 @@ class InferenceService:
 
     def _check_request(self, height: int, width: int, options: MatchOptions) -> None:
         """Every size limit of a request, from the image headers: nothing is allocated before they pass.
-        Raises DisparityRangeError for a range this server or this image cannot take, LimitError for a
-        request over a size limit."""
-        if options.max_disparity is not None and options.max_disparity > self.settings.max_disparity:
-            raise DisparityRangeError(
-                f"max_disparity {options.max_disparity} exceeds this server's limit of "
-                f"{self.settings.max_disparity} (ADSM_MAX_DISPARITY)"
-            )
-        # The matcher's own range rule and memory plan (service/limits.py, service/memory.py).
+        The rules are service/limits.py's, applied to the matcher's own range rule and memory plan;
+        DisparityRangeError for a range this server or this image cannot take, LimitError for a request
+        over a size limit."""
+        check_range_size(options.max_disparity, self.limits)
         plan = self._loaded().plan(height, width, options)
-        disparities = plan.disparities
-        cells = height * width * disparities
-        if cells > self.settings.max_cost_cells:
-            raise LimitError(
-                f"{width} x {height} pixels x {disparities} disparities = {cells} cost-volume cells "
-                f"exceeds this server's limit of {self.settings.max_cost_cells} (ADSM_MAX_COST_CELLS); "
-                "lower max_disparity or send smaller images"
-            )
-        if plan.peak_bytes > self.settings.max_request_bytes:
-            raise LimitError(
-                f"{width} x {height} pixels x {disparities} disparities would need {plan.describe()}, "
-                f"over this server's limit of {self.settings.max_request_bytes} bytes per request "
-                "(ADSM_MAX_REQUEST_BYTES); send smaller images or lower max_disparity"
-            )
-        work_limit = tower_work_limit(self.manifest, max_pixels=self.settings.max_pixels)
-        if plan.work_pixels > work_limit:
-            raise LimitError(
-                f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
-                f"pixels (each side is padded by half the receptive field), over this server's limit of "
-                f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of ADSM_MAX_PIXELS); "
-                + tower_work_advice(options.tower_scale)
-            )
+        check_plan(plan, self.manifest, self.limits, tower_scale=options.tower_scale)
 
     def _pair_size(self, left_bytes: bytes, right_bytes: bytes) -> tuple[int, int]:
         """The pair's (height, width) from the headers (ImageTooLargeError, ImageDecodeError); BadRequest
