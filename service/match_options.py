@@ -33,7 +33,7 @@ class MatchOptions:
     shiftable_windows: bool | None = None
     # The towers run on the pair upsampled by this integer factor, so each feature sees 1/scale of its
     # receptive field in image pixels (service/features/scale.py): sharper depth edges on clean, densely
-    # textured images, worse on noisy or weakly textured ones; costs ~scale^2 the towers' time and memory.
+    # textured images, worse on noisy or compressed ones; costs ~scale^2 the towers' time and memory.
     tower_scale: int = 1
     sgm: bool = True
     adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)

@@ -38,7 +38,7 @@ def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STE
         "(as OpenCV's minDisparity; default 0, negative allowed)")
     add("--tower-scale", type=int, default=1, metavar="S",
         help="run the feature towers on the pair upsampled by the integer S: sharper depth edges "
-        "on clean, densely textured images (Middlebury-like), worse on noisy or weakly textured ones; "
+        "on clean, densely textured images (Middlebury-like), worse on noisy or compressed ones; "
         "~S^2 times the towers' time (default 1; docs/service.md, \"Tower scale\")")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")

@@ -3,10 +3,11 @@
 A tower's feature describes a window of ``receptive_field`` pixels of its input. On the pair upsampled by
 ``s`` that window spans ``receptive_field / s`` pixels of the image, while the towers keep the features
 they learned: sharper depth edges (less foreground fattening) where the texture is dense enough for the
-smaller window, and more ambiguity where it is not or where sensor noise dominates a few pixels.
+smaller window, and more ambiguity where sensor noise, blur or compression dominate a few pixels.
 Measured (docs/training.md, "Tower scale"): at ``s = 2`` every learned model is clearly better on Cones
-(a clean, densely textured photograph) and worse on the synthetic validation split (noisy cameras, large
-weakly textured surfaces), so 1 stays the default and 2 is a per-call choice for imagery like Cones.
+(a clean, densely textured photograph) and worse on the synthetic validation split (its cameras add
+noise, blur and JPEG; without them adsm-fast is better at 2 there too), so 1 stays the default and 2 is a
+per-call choice for imagery like Cones.
 
 The grid is exact: pixel ``(s y, s x)`` of the upsampled image *is* pixel ``(y, x)`` of the image
 (bilinear between neighbours in between), so the features kept at every ``s``-th pixel are centred on

@@ -64,7 +64,7 @@ def stereo_options(
                                                     "sgm.shiftable_windows).")] = None,
     tower_scale: Annotated[int, Query(ge=1, le=MAX_TOWER_SCALE, description="Run the feature towers on the "
                                       "pair upsampled by this factor: sharper depth edges on clean, densely "
-                                      "textured images, worse on noisy or weakly textured ones; about "
+                                      "textured images, worse on noisy or compressed ones; about "
                                       "tower_scale^2 times the towers' time.")] = 1,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,

@@ -299,7 +299,8 @@ CATALOG = [
          params={**VALID_QUERY, "focal_px": 700, "baseline_m": 0.1, "format": "color"}),
     # --- issue 15: sizes that pass the pixel limit but not the work or memory model, containers, params -----
     # Header-only PNGs (decoding them would fail): a 413 shows the plan was judged before decoding.
-    Case("one row as wide as the pixel limit", 413, ("padded pixels", "square image of the pixel limit (ADSM_MAX_PIXELS)"),
+    Case("one row as wide as the pixel limit", 413,
+         ("padded pixels", "square image of the pixel limit (ADSM_MAX_PIXELS)"),
          files=files(png_claiming(HEIGHT * WIDTH, 1), png_claiming(HEIGHT * WIDTH, 1))),
     Case("one column as tall as the pixel limit", 413, ("padded pixels",), params={},
          files=files(png_claiming(1, HEIGHT * WIDTH), png_claiming(1, HEIGHT * WIDTH))),
