@@ -17,6 +17,7 @@ from service.api import Settings, create_app
 from service.cli import main
 from service.features import default_model_dir, load_manifest
 from service.features.manifest import MODELS_DIR
+from service.features.scale import MAX_TOWER_SCALE
 from service.features.tiles import TOWER_WORK_BYTES, work_bytes_per_pixel
 from service.memory import memory_bound, plan_request, tower_work_limit
 from tests.helpers import InstantMatcher, ready_client
@@ -49,6 +50,19 @@ def test_plan_is_bounded_for_every_aspect_ratio(name, height, width):
         assert work_ok, plan.describe()
     if min(height, width) <= 2:
         assert not work_ok, plan.describe()
+
+
+@pytest.mark.parametrize("scale", [2, MAX_TOWER_SCALE])
+@pytest.mark.parametrize(("height", "width"), SHAPES)
+def test_plan_at_a_tower_scale_stays_within_the_process_bound(height, width, scale):
+    # The upsampled runs are tiled to the same work budget, so memory_bound holds at every scale.
+    for name in MODELS:
+        manifest = _manifest(name)
+        disparities = min(DEFAULTS.max_cost_cells // (height * width), width, DEFAULTS.max_disparity)
+        plan = plan_request(height, width, disparities, manifest, scale=scale)
+        assert plan.tower_work <= TOWER_WORK_BYTES
+        bound = memory_bound(manifest, max_pixels=DEFAULTS.max_pixels, max_cost_cells=DEFAULTS.max_cost_cells)
+        assert plan.peak_bytes <= bound, (name, plan.describe())
 
 
 def test_default_request_limit_admits_every_shipped_model_at_1080p():
