@@ -163,7 +163,7 @@ def check_request(height: int, width: int, manifest: dict[str, Any], limits: Req
     span = search_range(width, min_disparity=min_disparity, max_disparity=max_disparity,
                         default_max=int(manifest["disparity"]["default_max"]))
     plan = plan_request(height, width, span.count, manifest, scale=tower_scale)
-    check_plan(plan, manifest, limits, tower_scale=tower_scale, who=who)
+    check_plan(plan, manifest, limits, who=who)
     return span, plan
 
 
@@ -177,7 +177,7 @@ def check_range_size(max_disparity: int | None, limits: RequestLimits, *, who: s
         )
 
 
-def check_plan(plan: MemoryPlan, manifest: dict[str, Any], limits: RequestLimits, *, tower_scale: int = 1,
+def check_plan(plan: MemoryPlan, manifest: dict[str, Any], limits: RequestLimits, *,
                who: str = "this server") -> None:
     """The limits on a request's memory plan (service/memory.py, from any matcher's ``plan``): cost-volume
     cells, peak bytes and the towers' work; :class:`LimitError` with what to change."""
@@ -202,11 +202,11 @@ def check_plan(plan: MemoryPlan, manifest: dict[str, Any], limits: RequestLimits
                 f"a {width} x {height} image makes the feature towers compute {plan.work_pixels} padded "
                 f"pixels (each side is padded by half the receptive field), over {who}'s limit of "
                 f"{work_limit} ({TOWER_WORK_FACTOR:g} x the work of a square image of the pixel limit"
-                f"{limits._named('max_pixels')}); " + tower_work_advice(tower_scale)
+                f"{limits._named('max_pixels')}); " + _tower_work_advice(plan.scale)
             )
 
 
-def tower_work_advice(tower_scale: int) -> str:
+def _tower_work_advice(tower_scale: int) -> str:
     """What to change when a request's towers would compute too many padded pixels."""
     if tower_scale > 1:
         return (f"tower_scale {tower_scale} makes them compute {tower_scale ** 2} times the pixels: lower "

@@ -60,6 +60,7 @@ class MemoryPlan:
     results: int
     tiles: tuple[Tile, ...]
     work_pixels: int  # padded pixels the towers compute, over all tiles
+    scale: int = 1  # the tower scale the tiles and the work are planned at (service/features/scale.py)
 
     @property
     def peak_bytes(self) -> int:
@@ -100,6 +101,7 @@ def plan_request(height: int, width: int, disparities: int, manifest: dict[str, 
         results=RESULT_BYTES_PER_PIXEL * pixels,
         tiles=tiles,
         work_pixels=sum(tile.padded_pixels(halo, scale) for tile in tiles),
+        scale=scale,
     )
 
 

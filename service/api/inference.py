@@ -190,7 +190,7 @@ class InferenceService:
         over a size limit."""
         check_range_size(options.max_disparity, self.limits)
         plan = self._loaded().plan(height, width, options)
-        check_plan(plan, self.manifest, self.limits, tower_scale=options.tower_scale)
+        check_plan(plan, self.manifest, self.limits)
 
     def _pair_size(self, left_bytes: bytes, right_bytes: bytes) -> tuple[int, int]:
         """The pair's (height, width) from the headers (ImageTooLargeError, ImageDecodeError); BadRequest
