@@ -1,4 +1,4 @@
-"""Tower scale: accuracy on the synthetic split and Cones, and KITTI-size predict time, per scale.
+"""Tower scale: accuracy on the synthetic split and the real pairs, and KITTI-size predict time, per scale.
 
     python -m bench tower_scale [--models service/models/adsm-fast ...] [--scales 1 2] [--pairs 20]
                                 [--repeats 3] [--threads 2] [--no-accuracy] [--no-time]
@@ -7,8 +7,8 @@ Every model folder runs the whole Matcher at each ``MatchOptions.tower_scale`` (
 at the folder's own P1/P2, scored like ``adsm eval`` (every ground-truth pixel; ``accepted``: the
 accepted-pixel bad-2 of the error breakdown), then times a KITTI-size pair (375x1242, D = 192, the
 suite's textured pair, ``bench.runtime.realistic_images``) in one process, warm: the scales interleaved,
-``--repeats`` rounds, the median of the whole call and of its ``towers`` stage. Cones is printed, never
-chosen on (docs/training.md, "Tower scale").
+``--repeats`` rounds, the median of the whole call and of its ``towers`` stage. The real pairs, Cones and
+Motorcycle (the SPEC ``motorcycle``), are printed, never chosen on (docs/training.md, "Tower scale").
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from service.datasets import open_dataset
 from service.evaluation.evaluate import evaluate
 from service.features.scale import MAX_TOWER_SCALE
 from service.matcher import Matcher, MatchOptions
-from training.data.evaluation_only import CONES_SPEC
+from training.data.evaluation_only import CONES_SPEC, MOTORCYCLE_SPEC
 
 KITTI_SIZE = (375, 1242)
 KITTI_DISPARITIES = 192
@@ -65,9 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not all(1 <= scale <= MAX_TOWER_SCALE for scale in args.scales):
         parser.error(f"every scale must be in 1..{MAX_TOWER_SCALE}")
-    data = (("synthetic", f"synthetic:{args.pairs}", None), ("cones", CONES_SPEC, 64))
+    data = ((f"synthetic:{args.pairs}", None), (CONES_SPEC, 64), (MOTORCYCLE_SPEC, 64))
     print(f"{'model':18}{'scale':>6}{'synthetic bad-2/1 %':>21}{'Cones bad-2/1 %':>17}{'accepted %':>12}"
-          f"{'KITTI s':>9}{'towers s':>10}")
+          f"{'Motorcycle bad-2/1 %':>22}{'KITTI s':>9}{'towers s':>10}")
     for folder in args.models:
         matcher = Matcher.from_folder(folder, threads=args.threads)
         matcher.warmup()
@@ -75,11 +75,13 @@ def main(argv: list[str] | None = None) -> int:
         for scale in args.scales:
             row = f"{folder.rstrip('/').split('/')[-1]:18}{scale:6d}"
             if args.accuracy:
-                synthetic, cones = (accuracy(matcher, scale, spec, search) for _, spec, search in data)
+                synthetic, cones, motorcycle = (accuracy(matcher, scale, spec, search)
+                                                for spec, search in data)
                 row += (f"{synthetic['bad2']:12.2f} / {synthetic['bad1']:5.2f}{cones['bad2']:8.2f} / "
-                        f"{cones['bad1']:5.2f}{cones['accepted']:12.2f}")
+                        f"{cones['bad1']:5.2f}{cones['accepted']:12.2f}"
+                        f"{motorcycle['bad2']:13.2f} / {motorcycle['bad1']:5.2f}")
             else:
-                row += " " * 50
+                row += " " * 72
             if scale in times:
                 row += f"{times[scale][0]:9.2f}{times[scale][1]:10.2f}"
             print(row, flush=True)

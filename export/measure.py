@@ -10,6 +10,9 @@ The data sets:
 
 - ``middlebury2003-cones``: the Cones pair (evaluation only, never tuned on), ``--cones PATH`` (default
   ``../shared/data/middlebury2003-cones`` beside the checkout); D = 64. Always measured.
+- ``middlebury2014-motorcycle``: the second real pair, the SPEC ``motorcycle`` (scikit-image's copy of
+  Middlebury 2014's Motorcycle, evaluation only like Cones); D = 64. Measured wherever scikit-image is
+  installed (the train extra), unless ``--no-motorcycle``.
 - ``synthetic-validation``: the fixed synthetic validation split (``synthetic:N``), when the manifest
   already carries it (N = its ``pairs``) or ``--synthetic N`` asks for it (``--synthetic 0``: not).
 - ``--data NAME=SPEC`` (repeatable): any other ``adsm eval`` data SPEC under a name of your choice.
@@ -36,6 +39,9 @@ from typing import Any
 from service.features.manifest import ModelError, load_manifest, write_manifest
 from training.data.evaluation_only import CONES_FOLDER as DEFAULT_CONES
 from training.data.evaluation_only import CONES_NAME as CONES
+from training.data.evaluation_only import MOTORCYCLE_NAME as MOTORCYCLE
+from training.data.evaluation_only import MOTORCYCLE_SPEC
+from training.data.motorcycle import motorcycle_files
 
 SYNTHETIC = "synthetic-validation"
 DEFAULT_SYNTHETIC_PAIRS = 20
@@ -44,21 +50,33 @@ FIGURES = ("bad1", "bad2", "bad3", "bad4", "bad5", "d1", "epe", "density", "pixe
 
 
 def default_datasets(manifest: Mapping[str, Any], *, cones: str | Path | None = DEFAULT_CONES,
-                     synthetic_pairs: int | None = None) -> dict[str, str]:
+                     synthetic_pairs: int | None = None, motorcycle: bool = True) -> dict[str, str]:
     """NAME -> SPEC of the data sets a folder is measured on (see the module docstring).
 
     ``cones`` None or a missing folder leaves Cones out (the caller decides whether that is an error);
-    ``synthetic_pairs`` None means: as many pairs as the manifest's synthetic entry records, if any.
+    ``synthetic_pairs`` None means: as many pairs as the manifest's synthetic entry records, if any;
+    ``motorcycle`` measures the Motorcycle pair where scikit-image's copy of it is installed.
     """
     datasets: dict[str, str] = {}
     if cones is not None and Path(cones).is_dir():
         datasets[CONES] = f"cones:{_display_path(cones)}"
+    if motorcycle and motorcycle_installed():
+        datasets[MOTORCYCLE] = MOTORCYCLE_SPEC
     if synthetic_pairs is None:
         recorded = manifest.get("metrics", {}).get(SYNTHETIC)
         synthetic_pairs = int(recorded.get("pairs") or DEFAULT_SYNTHETIC_PAIRS) if recorded else 0
     if synthetic_pairs > 0:
         datasets[SYNTHETIC] = f"synthetic:{synthetic_pairs}"
     return datasets
+
+
+def motorcycle_installed() -> bool:
+    """Whether the SPEC ``motorcycle`` can be opened here (scikit-image and its copy of the pair)."""
+    try:
+        motorcycle_files()
+    except (ModuleNotFoundError, FileNotFoundError):
+        return False
+    return True
 
 
 def datasets_of(manifest: Mapping[str, Any]) -> dict[str, str]:
@@ -115,20 +133,26 @@ def measure_command(folder: str | Path, datasets: Mapping[str, str], *, write: b
     argv += ["--synthetic", synthetic]
     if CONES in datasets:
         argv += ["--cones", datasets[CONES].partition(":")[2]]
-    argv += [item for name, spec in datasets.items() if name not in (CONES, SYNTHETIC)
+    if MOTORCYCLE not in datasets:
+        argv += ["--no-motorcycle"]
+    argv += [item for name, spec in datasets.items() if name not in (CONES, SYNTHETIC, MOTORCYCLE)
              for item in ("--data", f"{name}={spec}")]
     return shlex.join(argv + (["--write"] if write else []))
 
 
 README_FIGURES = ("bad2", "bad1", "bad3", "bad4", "bad5", "epe", "bad2_nonocc")  # the table's Cones columns
+README_MOTORCYCLE_FIGURES = ("bad2", "bad1")  # then the Motorcycle columns
 
 
 def readme_row(metrics: Mapping[str, Any]) -> str:
     """The README model table's figures, in its column order: synthetic bad-2 % ("-" when not measured),
-    then Cones bad-2, bad-1, bad-3, bad-4, bad-5 %, EPE px, non-occluded bad-2 %."""
+    then Cones bad-2, bad-1, bad-3, bad-4, bad-5 %, EPE px, non-occluded bad-2 %, then Motorcycle bad-2
+    and bad-1 % ("-" when not measured)."""
     cones = metrics[CONES]
     synthetic = f"{metrics[SYNTHETIC]['bad2']:.2f}" if SYNTHETIC in metrics else "-"
-    cells = [synthetic] + [f"{cones[key]:.2f}" for key in README_FIGURES]
+    motorcycle = metrics.get(MOTORCYCLE)
+    cells = ([synthetic] + [f"{cones[key]:.2f}" for key in README_FIGURES]
+             + [f"{motorcycle[key]:.2f}" if motorcycle else "-" for key in README_MOTORCYCLE_FIGURES])
     return "| " + " | ".join(cells) + " |"
 
 
@@ -148,6 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", required=True, type=Path, metavar="DIR", help="model folder to measure")
     parser.add_argument("--cones", type=Path, default=DEFAULT_CONES, metavar="PATH",
                         help="the Cones folder (default: %(default)s)")
+    parser.add_argument("--no-motorcycle", action="store_true",
+                        help="leave out the Motorcycle pair (measured by default where scikit-image is "
+                             "installed)")
     parser.add_argument("--synthetic", type=int, metavar="N",
                         help="synthetic validation pairs (default: as many as the manifest records, "
                              "0 if it records none)")
@@ -167,19 +194,21 @@ def main(argv: list[str] | None = None) -> int:
         if not args.cones.is_dir():
             raise ValueError(f"no Cones folder at {args.cones} (--cones PATH)")
         manifest = load_manifest(args.model)
-        datasets = default_datasets(manifest, cones=args.cones, synthetic_pairs=args.synthetic)
+        datasets = default_datasets(manifest, cones=args.cones, synthetic_pairs=args.synthetic,
+                                    motorcycle=not args.no_motorcycle)
         for item in args.data:
             name, equals, spec = item.partition("=")
             if not (name and equals and spec):
                 raise ValueError(f"--data wants NAME=SPEC, got {item!r}")
-            if name in (CONES, SYNTHETIC):  # its figures would be recorded as that data set's
-                raise ValueError(f"--data {item!r}: {name} is measured by --cones / --synthetic; "
-                                 "give this data set another NAME")
+            if name in (CONES, SYNTHETIC, MOTORCYCLE):  # its figures would be recorded as that data set's
+                raise ValueError(f"--data {item!r}: {name} is measured by --cones / --synthetic / "
+                                 "--no-motorcycle; give this data set another NAME")
             datasets[name] = spec
         metrics = measure_folder(args.model, datasets, command=command, threads=args.threads,
                                  log=lambda line: print(line, file=sys.stderr))
         print(json.dumps(metrics, indent=2))
-        print(f"README row figures (synthetic bad-2; Cones bad-2, bad-1, bad-3..5, EPE, non-occl. bad-2): "
+        print(f"README row figures (synthetic bad-2; Cones bad-2, bad-1, bad-3..5, EPE, non-occl. bad-2; "
+              "Motorcycle bad-2, bad-1): "
               f"{readme_row(metrics)}", file=sys.stderr)
         if args.write:
             print(f"wrote {write_metrics(args.model, metrics)}", file=sys.stderr)

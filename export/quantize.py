@@ -42,7 +42,7 @@ from export.measure import datasets_of, measure_command, measure_folder
 from service.features.manifest import TOWER_FILES, load_manifest, write_manifest
 from service.features.towers import FeatureTowers
 from service.io import read_image
-from training.data.evaluation_only import EVALUATION_ONLY
+from training.data.evaluation_only import EVALUATION_ONLY, EVALUATION_ONLY_FILES
 from training.data.photos import data_folder
 
 DEFAULT_CALIBRATION = "skimage:astronaut,chelsea,rocket,brick,gravel"
@@ -84,7 +84,8 @@ def calibration_images(spec: str) -> list[tuple[str, np.ndarray]]:
         paths = sorted(Path(p) for p in glob.glob(spec))
     if not paths:
         raise ValueError(f"calibration spec {spec!r} names no images")
-    if refused := [p for p in paths if any(part in EVALUATION_ONLY for part in p.resolve().parts)]:
+    if refused := [p for p in paths if p.name in EVALUATION_ONLY_FILES
+                   or any(part in EVALUATION_ONLY for part in p.resolve().parts)]:
         raise ValueError(f"{refused[0]} belongs to an evaluation-only data set; never calibrate on it")
     return [(p.stem, read_image(p, name=str(p))) for p in paths]
 

@@ -137,7 +137,8 @@ def test_pyproject_registers_the_runtimes_extension_kinds_with_the_extra_they_na
     for kind, needs in EXTRA_KINDS.items():
         assert needs.extra in project["optional-dependencies"]
         module = entries[kind].partition(":")[0]
-        assert module.split(".")[0] in PACKAGES and (ROOT / module.replace(".", "/")).exists()
+        path = ROOT / module.replace(".", "/")
+        assert module.split(".")[0] in PACKAGES and (path.is_dir() or path.with_suffix(".py").is_file())
 
 
 def command_lines(package: str) -> set[str]:

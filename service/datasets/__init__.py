@@ -8,6 +8,8 @@ SPEC string:
                           the generator of the train extra, found through an entry point (extensions.py)
     synthetic-clean[:N]   the same scenes without camera effects (no noise, blur, gain or JPEG): a
                           diagnostic of how much of the split's error the cameras cause
+    motorcycle            Middlebury 2014's Motorcycle at quarter size, as scikit-image's wheel ships
+                          it: a second real pair, evaluation only (train extra)
     kitti2012:PATH        KITTI 2012 (colored_0, colored_1, disp_occ, disp_noc)
     kitti2015:PATH        KITTI 2015 (image_2, image_3, disp_occ_0, disp_noc_0)
     middlebury:PATH       Middlebury 2014 / MiddEval3 scene folders (im0.png, im1.png, disp0GT.pfm)

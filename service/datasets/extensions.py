@@ -26,7 +26,8 @@ class ExtraKind(NamedTuple):
 
 # This project's kinds that an extra provides: named in the SPEC help and in the error when it is missing.
 EXTRA_KINDS = {"synthetic": ExtraKind(extra="train", usage="synthetic[:N]"),
-               "synthetic-clean": ExtraKind(extra="train", usage="synthetic-clean[:N]")}
+               "synthetic-clean": ExtraKind(extra="train", usage="synthetic-clean[:N]"),
+               "motorcycle": ExtraKind(extra="train", usage="motorcycle")}
 
 
 def registered() -> dict[str, importlib.metadata.EntryPoint]:
@@ -36,8 +37,8 @@ def registered() -> dict[str, importlib.metadata.EntryPoint]:
 
 def usages() -> list[str]:
     """How each extension kind, installed or not, is written in a SPEC."""
-    return [EXTRA_KINDS[kind].usage if kind in EXTRA_KINDS else f"{kind}[:ARGUMENT]"
-            for kind in sorted(set(EXTRA_KINDS) | set(registered()))]
+    others = sorted(set(registered()) - set(EXTRA_KINDS))
+    return [kind.usage for kind in EXTRA_KINDS.values()] + [f"{kind}[:ARGUMENT]" for kind in others]
 
 
 def open_extension(spec: str, kind: str, argument: str) -> Sequence[StereoSample] | None:

@@ -18,7 +18,7 @@ import torch
 
 from service.datasets import StereoSample, open_dataset
 from service.datasets.readers import detect_kind
-from training.data.evaluation_only import EVALUATION_ONLY
+from training.data.evaluation_only import EVALUATION_ONLY, MOTORCYCLE_SPEC
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
 from training.data.synthetic import VALIDATION_SEED, Photometric, Rectification, SyntheticConfig, generate
 
@@ -147,6 +147,9 @@ def _refuse_evaluation_data(data: str) -> None:
     if kind == "synthetic":
         raise ValueError(f"{data!r} is the synthetic validation split (best.pt is selected on it): train on "
                          "'synthetic', the generator's training seeds")
+    if kind == MOTORCYCLE_SPEC:
+        raise ValueError(f"{data!r} is an evaluation pair (Middlebury 2014's Motorcycle): training on it "
+                         "is not allowed")
     path = Path(argument or data)
     named = any(name in str(path.resolve()) for name in EVALUATION_ONLY)
     if kind == "cones" or named or (path.is_dir() and not argument and detect_kind(path) == "cones"):

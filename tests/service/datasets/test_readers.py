@@ -14,6 +14,7 @@ from service.datasets import extensions, open_dataset
 from service.datasets.readers import KITTI_MAX_DISPARITY, detect_kind
 from service.io import write_disparity
 from training.data import photos
+from training.data.motorcycle import open_motorcycle
 from training.data.synthetic import open_clean_validation_split, open_validation_split
 
 HEIGHT, WIDTH = 6, 10
@@ -141,32 +142,36 @@ def test_synthetic_clean_spec_is_the_same_scenes_without_camera_effects():
     assert difference.mean() < 1
 
 
-@pytest.mark.parametrize("kind, function", [("synthetic", open_validation_split),
-                                            ("synthetic-clean", open_clean_validation_split)])
-def test_synthetic_kinds_are_the_train_extras_entry_points(kind, function):
+@pytest.mark.parametrize("kind, module, function", [
+    ("synthetic", "training.data.synthetic", open_validation_split),
+    ("synthetic-clean", "training.data.synthetic", open_clean_validation_split),
+    ("motorcycle", "training.data.motorcycle", open_motorcycle)])
+def test_train_extra_kinds_are_its_entry_points(kind, module, function):
     entry = extensions.registered()[kind]
-    assert entry.value == f"training.data.synthetic:{function.__name__}"
+    assert entry.value == f"{module}:{function.__name__}"
     assert entry.load() is function
+    assert kind in extensions.EXTRA_KINDS
 
 
 @pytest.mark.parametrize("absence", ["no entry point", "no training package", "no scikit-image"])
-def test_synthetic_without_the_train_extra_names_the_extra_in_one_line(monkeypatch, absence):
+def test_train_extra_kinds_without_it_name_the_extra_in_one_line(monkeypatch, absence):
     if absence == "no entry point":  # installed without the entry point's metadata
         monkeypatch.setattr(extensions, "registered", lambda: {})
     elif absence == "no training package":  # the serve-only image: the metadata names a module it lacks
         entry = importlib.metadata.EntryPoint(name="synthetic", value="adsm_no_such_module:open",
                                               group=extensions.ENTRY_POINT_GROUP)
-        monkeypatch.setattr(extensions, "registered", lambda: {"synthetic": entry})
+        monkeypatch.setattr(extensions, "registered", lambda: {"synthetic": entry, "motorcycle": entry})
     else:  # `pip install '.[serve]'` from a checkout: training is there, scikit-image's photos are not
         no_skimage = SimpleNamespace(util=SimpleNamespace(find_spec=lambda _: None))
         monkeypatch.setattr(photos, "importlib", no_skimage)
-    with pytest.raises(ValueError) as raised:
-        open_dataset("synthetic:2")
-    message = str(raised.value)
-    assert message.startswith("dataset 'synthetic:2' needs the train extra (pip install -e '.[train]'): ")
-    assert "\n" not in message
-    if absence == "no scikit-image":
-        assert "scikit-image is not installed" in message
+    for spec in ("synthetic:2", "motorcycle"):
+        with pytest.raises(ValueError) as raised:
+            open_dataset(spec)
+        message = str(raised.value)
+        assert message.startswith(f"dataset {spec!r} needs the train extra (pip install -e '.[train]'): ")
+        assert "\n" not in message
+        if absence == "no scikit-image":
+            assert "scikit-image is not installed" in message
 
 
 @pytest.mark.parametrize("spec, message", [
@@ -174,6 +179,7 @@ def test_synthetic_without_the_train_extra_names_the_extra_in_one_line(monkeypat
     ("synthetic:zero", "positive"),
     ("synthetic:0", "positive"),
     ("synthetic-clean:-3", "positive pair count, got '-3'"),
+    ("motorcycle:2", "takes no argument, got '2'"),
     ("kitti2015:", "needs the dataset folder"),
     ("sceneflow:/data", "expected synthetic"),
     ("/no/such/folder", "expected synthetic"),
