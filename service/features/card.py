@@ -22,6 +22,9 @@ PROJECT_LICENCE = "Apache-2.0"
 DATASET_NOTES = {
     "middlebury2003-cones": "Middlebury 2003 *Cones*, 450 x 375, a real pair: evaluation only, never "
     "trained, selected or tuned on",
+    "middlebury2014-motorcycle": "Middlebury 2014 *Motorcycle* at quarter size, 741 x 500, as "
+    "scikit-image's wheel ships it, occlusions derived from its truth: a real pair, evaluation only, never "
+    "trained, selected or tuned on",
     "synthetic-validation": "the fixed synthetic validation split (seeds from 10^9, 256 x 512): models, "
     "checkpoints and P1/P2 are chosen on it",
 }
