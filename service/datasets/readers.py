@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import overload
 
@@ -44,12 +44,14 @@ class PairFiles:
 
 
 class PairList(Sequence[StereoSample]):
-    """Pairs of one dataset, read from disk when indexed."""
+    """Pairs of one dataset, read from disk when indexed (by ``load``: ``load_pair`` unless a layout
+    needs its own reader)."""
 
-    def __init__(self, name: str, pairs: list[PairFiles]):
+    def __init__(self, name: str, pairs: list[PairFiles], *,
+                 load: Callable[[PairFiles], StereoSample] | None = None):
         if not pairs:
             raise ValueError(f"{name}: no stereo pairs with ground truth found")
-        self.name, self.pairs = name, pairs
+        self.name, self.pairs, self.load = name, pairs, load or load_pair
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -63,7 +65,7 @@ class PairList(Sequence[StereoSample]):
     def __getitem__(self, index: int | slice) -> StereoSample | list[StereoSample]:
         if isinstance(index, slice):
             return [self[i] for i in range(*index.indices(len(self)))]
-        return load_pair(self.pairs[index])
+        return self.load(self.pairs[index])
 
 
 def load_pair(files: PairFiles) -> StereoSample:

@@ -14,14 +14,13 @@ nearer surface. ``adsm eval --data motorcycle`` and ``python -m export.measure``
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
-from typing import overload
 
 import numpy as np
 from PIL import Image
 
 from service.datasets import StereoSample
+from service.datasets.readers import PairFiles, PairList
 from training.data.evaluation_only import MOTORCYCLE_FILES
 from training.data.photos import data_folder
 
@@ -29,51 +28,31 @@ MOTORCYCLE_MAX_DISPARITY = 64                   # the truth reaches 59.9 px; Con
 # A left pixel counts as covered in the right view when a nearer surface lands on its match with a
 # disparity larger by more than this (px): Middlebury's masks use a 1 px tolerance for the same test.
 OCCLUSION_TOLERANCE = 1.0
+DATASET_NAME = "motorcycle (Middlebury 2014, scikit-image's quarter-size copy)"
 
 
-class MotorcyclePair(Sequence[StereoSample]):
-    """The one pair, loaded on access (a dataset: a ``Sequence[StereoSample]`` with a ``name``)."""
-
-    name = "motorcycle (Middlebury 2014, scikit-image's quarter-size copy)"
-
-    def __len__(self) -> int:
-        return 1
-
-    @overload
-    def __getitem__(self, index: int) -> StereoSample: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> list[StereoSample]: ...
-
-    def __getitem__(self, index: int | slice) -> StereoSample | list[StereoSample]:
-        if isinstance(index, slice):
-            return [self[i] for i in range(*index.indices(1))]
-        if index not in (0, -1):
-            raise IndexError(f"pair {index} out of range (0..0)")
-        return load_motorcycle()
-
-
-def open_motorcycle(argument: str) -> MotorcyclePair:
+def open_motorcycle(argument: str) -> PairList:
     """The dataset SPEC ``motorcycle``, registered for ``service.datasets``; it takes no argument.
 
     Raises ModuleNotFoundError now when scikit-image is not installed (so that ``adsm eval`` can name the
-    extra to install) and FileNotFoundError when its copy lacks one of the files.
+    extra to install) and FileNotFoundError when its copy lacks one of the files. The pair loads when
+    indexed.
     """
     if argument:
         raise ValueError(f"motorcycle takes no argument, got {argument!r}")
-    motorcycle_files()
-    return MotorcyclePair()
+    left, right, truth = motorcycle_files()
+    files = PairFiles("motorcycle", left, right, truth, max_disparity=MOTORCYCLE_MAX_DISPARITY)
+    return PairList(DATASET_NAME, [files], load=load_motorcycle)
 
 
-def load_motorcycle() -> StereoSample:
+def load_motorcycle(files: PairFiles) -> StereoSample:
     """The pair with its ground truth (NaN where unknown) and the derived non-occluded mask."""
-    left_path, right_path, truth_path = motorcycle_files()
-    left, right = (_read_rgb(path) for path in (left_path, right_path))
-    with np.load(truth_path, allow_pickle=False) as archive:
+    left, right = (_read_rgb(path) for path in (files.left, files.right))
+    with np.load(files.disparity, allow_pickle=False) as archive:
         disparity = np.asarray(archive["arr_0"], dtype=np.float32)
     disparity = np.where(np.isfinite(disparity) & (disparity > 0), disparity, np.nan).astype(np.float32)
-    return StereoSample(name="motorcycle", left=left, right=right, disparity=disparity,
-                        nonoccluded=visible_in_right(disparity), max_disparity=MOTORCYCLE_MAX_DISPARITY)
+    return StereoSample(name=files.name, left=left, right=right, disparity=disparity,
+                        nonoccluded=visible_in_right(disparity), max_disparity=files.max_disparity)
 
 
 def visible_in_right(disparity: np.ndarray, *, tolerance: float = OCCLUSION_TOLERANCE) -> np.ndarray:
