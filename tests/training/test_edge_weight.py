@@ -70,3 +70,27 @@ def test_the_trainer_takes_the_weight_and_refuses_a_negative_one(tmp_path, capsy
                        "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--val-every", "1",
                        "--val-pairs", "1", "--cones", "", "--edge-weight", "-1", "--out", str(tmp_path)]) == 1
     assert "depth-edge weight must be >= 0" in capsys.readouterr().err
+
+
+def test_the_prepared_gpu_chunk_runs_the_edge_weight_against_its_control(tmp_path):
+    """training/edge_weight_chunk.sh (issue 11's GPU list): four trainer command lines the trainer accepts,
+    the 11-px and 17-px towers each at edge weight 4 and 0 with the same seed, steps and schedule, resumed
+    from their own folders."""
+    import shlex
+    import subprocess
+
+    from tests.helpers import ROOT
+    from training.train import argument_problem, build_parser
+
+    printed = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")], check=True,
+                             capture_output=True, text=True, cwd=ROOT,
+                             env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "DRY_RUN": "1"}).stdout
+    runs = [build_parser().parse_args(shlex.split(line)[3:]) for line in printed.splitlines()]
+    assert [(args.config, args.edge_weight) for args in runs] == [
+        ("11-5conv", 4.0), ("11-5conv", 0.0), ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
+    for args in runs:
+        assert argument_problem(args) is None
+        assert (args.device, args.resume, args.schedule, args.seed, args.iterations) == (
+            "cuda", "auto", "cosine", 0, 9000)
+        assert args.time_budget == 480 and args.out == f".gpu/runs/{args.out.rpartition('/')[2]}"
+    assert len({args.out for args in runs}) == 4
