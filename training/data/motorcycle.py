@@ -26,7 +26,7 @@ from training.data.photos import data_folder
 
 MOTORCYCLE_MAX_DISPARITY = 64                   # the truth reaches 59.9 px; Cones uses the same range
 # A left pixel counts as covered in the right view when a nearer surface lands on its match with a
-# disparity larger by more than this (px): Middlebury's masks use a 1 px tolerance for the same test.
+# disparity larger by more than this (px): the usual tolerance of a left-right consistency check.
 OCCLUSION_TOLERANCE = 1.0
 DATASET_NAME = "motorcycle (Middlebury 2014, scikit-image's quarter-size copy)"
 
