@@ -74,12 +74,12 @@ def visible_in_right(disparity: np.ndarray, *, tolerance: float = OCCLUSION_TOLE
     rows, columns = np.nonzero(known)
     values = disparity[known].astype(np.float64)
     match = columns - values
-    cover = np.full(height * (width + 1), -np.inf)
+    cover = np.full((height, width), -np.inf)
     for column in (np.floor(match), np.floor(match) + 1):
         inside = (column >= 0) & (column < width)
-        np.maximum.at(cover, rows[inside] * (width + 1) + column[inside].astype(np.int64), values[inside])
+        np.maximum.at(cover, (rows[inside], column[inside].astype(np.int64)), values[inside])
     nearest = np.clip(np.round(match), 0, width - 1).astype(np.int64)
-    visible = (match >= 0) & (cover[rows * (width + 1) + nearest] <= values + tolerance)
+    visible = (match >= 0) & (cover[rows, nearest] <= values + tolerance)
     mask = np.zeros((height, width), dtype=bool)
     mask[rows[visible], columns[visible]] = True
     return mask
@@ -89,12 +89,11 @@ def motorcycle_files() -> tuple[Path, Path, Path]:
     """Left view, right view and truth in scikit-image's data folder; ModuleNotFoundError without
     scikit-image, FileNotFoundError (one line) when its copy lacks one of them."""
     folder = data_folder()
-    left, right, truth = (folder / name for name in MOTORCYCLE_FILES)
-    paths = (left, right, truth)
+    left, right, truth = paths = tuple(folder / name for name in MOTORCYCLE_FILES)
     if missing := [path.name for path in paths if not path.is_file()]:
         raise FileNotFoundError(f"scikit-image's data folder {folder} lacks {', '.join(missing)}: "
                                 "reinstall scikit-image")
-    return paths
+    return left, right, truth
 
 
 def _read_rgb(path: Path) -> np.ndarray:
