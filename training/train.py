@@ -84,6 +84,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="synthetic data: render this share of the pairs without camera effects (no "
                              "noise, blur, gain, gamma or JPEG; 8-bit only), so the towers also see views "
                              "whose fine texture is signal (default 0; docs/training.md)")
+    parser.add_argument("--curved-surfaces", type=float, default=0.0, metavar="P",
+                        help="synthetic data: this share of the objects bulge towards the cameras (a "
+                             "paraboloid in disparity) and are shaded as matte solids; the rest of each "
+                             "scene stays that of a run without it (default 0; docs/data.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
@@ -138,7 +142,8 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
-    # (--edge-weight, --vignetting and --clean-views are checked where they are used, NaN included.)
+    # (--edge-weight, --vignetting, --clean-views and --curved-surfaces are checked where they are used,
+    # NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
               ("time-budget", args.time_budget, False))
     for name, value, positive in floats:
@@ -201,6 +206,7 @@ def main(argv: list[str] | None = None) -> int:
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
+                         curved_surfaces=args.curved_surfaces,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

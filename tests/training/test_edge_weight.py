@@ -72,25 +72,46 @@ def test_the_trainer_takes_the_weight_and_refuses_a_negative_one(tmp_path, capsy
     assert "depth-edge weight must be >= 0" in capsys.readouterr().err
 
 
-def test_the_prepared_gpu_chunk_runs_the_edge_weight_against_its_control(tmp_path):
-    """training/edge_weight_chunk.sh (issue 11's GPU list): four trainer command lines the trainer accepts,
-    the 11-px and 17-px towers each at edge weight 4 and 0 with the same seed, steps and schedule, resumed
-    from their own folders."""
+def _chunk_command_lines(tmp_path, **env: str) -> list:
     import shlex
     import subprocess
 
     from tests.helpers import ROOT
-    from training.train import argument_problem, build_parser
+    from training.train import build_parser
 
+    env = {"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "DRY_RUN": "1", **env}
     printed = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")], check=True,
-                             capture_output=True, text=True, cwd=ROOT,
-                             env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "DRY_RUN": "1"}).stdout
-    runs = [build_parser().parse_args(shlex.split(line)[3:]) for line in printed.splitlines()]
+                             capture_output=True, text=True, cwd=ROOT, env=env).stdout
+    return [build_parser().parse_args(shlex.split(line)[3:]) for line in printed.splitlines()]
+
+
+def test_the_prepared_gpu_chunk_runs_the_edge_weight_against_its_control(tmp_path):
+    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 17-px tower at edge weight 4
+    and 0 with the same seed, steps and schedule, sized for one device call, resumed from its own folders;
+    PLAN names other runs."""
+    from training.train import argument_problem
+
+    runs = _chunk_command_lines(tmp_path, WORKERS="7")
     assert [(args.config, args.edge_weight) for args in runs] == [
-        ("11-5conv", 4.0), ("11-5conv", 0.0), ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
+        ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
     for args in runs:
         assert argument_problem(args) is None
-        assert (args.device, args.resume, args.schedule, args.seed, args.iterations) == (
-            "cuda", "auto", "cosine", 0, 9000)
+        assert (args.device, args.resume, args.schedule, args.seed, args.iterations, args.workers) == (
+            "cuda", "auto", "cosine", 0, 5000, 7)
         assert args.time_budget == 480 and args.out == f".gpu/runs/{args.out.rpartition('/')[2]}"
-    assert len({args.out for args in runs}) == 4
+    assert len({args.out for args in runs}) == 2
+    four = _chunk_command_lines(tmp_path, PLAN="k11-w4 k11-w0 k17-w4 k17-w0", ITERATIONS="9000")
+    assert [(args.config, args.edge_weight, args.iterations) for args in four] == [
+        ("11-5conv", 4.0, 9000), ("11-5conv", 0.0, 9000), ("13-1deconv3-4conv", 4.0, 9000),
+        ("13-1deconv3-4conv", 0.0, 9000)]
+
+
+def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):
+    import subprocess
+
+    from tests.helpers import ROOT
+
+    refused = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")], capture_output=True,
+                             text=True, cwd=ROOT, env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path),
+                                                       "DRY_RUN": "1", "PLAN": "k17-w4 k13-w0"})
+    assert refused.returncode == 2 and "'k13-w0' is not TOWER-wWEIGHT" in refused.stderr

@@ -10,10 +10,22 @@ from training.data.synthetic.generator import (
     VALIDATION_SEED,
     SyntheticConfig,
     generate,
+    random_scene,
     validation_split,
 )
 from training.data.synthetic.photometric import Photometric, apply_camera
-from training.data.synthetic.scene import Everywhere, Layer, Plane, Polygon, Segment, render
+from training.data.synthetic.scene import (
+    DOME_MAX_SLOPE,
+    Dome,
+    Ellipse,
+    Everywhere,
+    Layer,
+    Plane,
+    Polygon,
+    Segment,
+    Shaded,
+    render,
+)
 from training.data.synthetic.textures import PHOTOS, ImageTexture, load_photos
 
 
@@ -58,7 +70,7 @@ def test_right_view_hits_the_surface_its_disparity_says():
     # Slanted plane: the disparity seen on the right equals the plane at the left point it came from.
     x_left = scene.right[..., 0]
     y = np.arange(40, dtype=np.float32)[:, None]
-    on_background = np.isclose(scene.disparity_right, layers[0].plane.at(x_left, y), atol=1e-3)
+    on_background = np.isclose(scene.disparity_right, layers[0].surface.at(x_left, y), atol=1e-3)
     assert on_background.mean() > 0.5
 
 
@@ -76,6 +88,71 @@ def test_visible_left_pixels_find_their_surface_in_the_right_view():
         seen = np.interp(x_right[smooth], np.arange(128), scene.right[row, :, 0])
         assert smooth.sum() > 60
         np.testing.assert_allclose(seen, visible[smooth], atol=1e-3)
+
+
+def test_a_dome_is_ray_cast_exactly_in_both_views():
+    """A curved surface has no closed-form right-view intersection: the fixed point must land on the
+    surface point whose disparity the right view reports, and the left view must find it again."""
+    paint = SurfaceCoordinates()
+    dome = Dome(Plane(0.05, -0.02, 20.0), cx=64.0, cy=20.0, rx=30.0, ry=14.0, angle=0.4, height=3.0)
+    layers = [Layer(Plane(0.0, 0.0, 6.0), Everywhere(), paint),
+              Layer(dome, Ellipse(64.0, 20.0, 30.0, 14.0, 0.4), paint)]
+    scene = render(layers, height=40, width=128)
+    x_left, y = scene.right[..., 0], np.arange(40, dtype=np.float32)[:, None] + 0 * scene.right[..., 0]
+    on_dome = np.isclose(scene.disparity_right, dome.at(x_left, y), atol=1e-3) & (scene.disparity_right > 10)
+    assert on_dome.sum() > 300
+    # x_r = x - d(x, y) on every right pixel that sees the dome, and the bulge is really there.
+    columns = np.broadcast_to(np.arange(128, dtype=np.float32), (40, 128))
+    np.testing.assert_allclose(columns[on_dome], (x_left - dome.at(x_left, y))[on_dome], atol=2e-3)
+    assert scene.disparity[20, 64] == pytest.approx(dome.plane.at(64.0, 20.0) + 3.0, abs=1e-4)
+    row = 20
+    visible = np.flatnonzero(~scene.occluded[row] & (scene.disparity[row] > 10))
+    seen = np.interp(visible - scene.disparity[row, visible], np.arange(128), scene.right[row, :, 0])
+    np.testing.assert_allclose(seen[2:-2], visible[2:-2], atol=2e-2)
+
+
+def test_domes_refuse_slopes_the_ray_casting_cannot_follow():
+    with pytest.raises(ValueError, match="too steep"):
+        Dome(Plane(0.1, 0, 10), cx=0, cy=0, rx=10, ry=4, angle=0, height=1.0)   # 0.1 + 2 / 4 > 0.5
+    Dome(Plane(0.1, 0, 10), cx=0, cy=0, rx=10, ry=4, angle=0, height=0.79)
+    assert DOME_MAX_SLOPE < 1
+
+
+def test_shading_is_the_same_paint_in_both_views_and_darkens_away_from_the_light():
+    dome = Dome(Plane(0, 0, 10), cx=0.0, cy=0.0, rx=20.0, ry=20.0, angle=0.0, height=2.0)
+    lit = Shaded(SurfaceCoordinates(), dome, relief=1.0, light=(1.0, 0.0, 0.0), ambient=0.2)
+    flat = ImageTexture(np.ones((4, 4, 3), dtype=np.float32))
+    shaded = Shaded(flat, dome, relief=1.0, light=(1.0, 0.0, 0.0), ambient=0.2)
+    x, y = np.array([15.0, -15.0, 0.0, 30.0]), np.zeros(4)
+    brightness = shaded.sample(x, y)[:, 0]
+    # Facing the light (x > 0 side: normal leans to +x) bright, facing away only ambient, outside flat.
+    assert brightness[0] > 0.5 and brightness[1] == pytest.approx(0.2) and brightness[3] == pytest.approx(0.2)
+    assert lit.sample(x, y).dtype == np.float32
+
+
+def test_curved_surfaces_leave_the_rest_of_the_scene_and_the_split_unchanged():
+    config = SyntheticConfig(height=96, width=192, max_disparity=48)
+    curved = SyntheticConfig(height=96, width=192, max_disparity=48, curved_surfaces=1.0)
+    plain_layers = random_scene(np.random.default_rng(3), height=96, width=192, max_disparity=48,
+                                photo_probability=0.35)
+    curved_layers = random_scene(np.random.default_rng(3), height=96, width=192, max_disparity=48,
+                                 photo_probability=0.35, curved_surfaces=1.0,
+                                 shapes=np.random.default_rng([3, 1]))
+    assert len(plain_layers) == len(curved_layers)
+    domes = [c for p, c in zip(plain_layers, curved_layers, strict=True) if isinstance(c.surface, Dome)]
+    assert domes and all(d.surface.plane in [p.surface for p in plain_layers] for d in domes)
+    assert all(c.surface == p.surface for p, c in zip(plain_layers, curved_layers, strict=True)
+               if not isinstance(c.surface, Dome))
+    for seed in range(4):
+        sample = generate(seed, curved)
+        assert np.nanmin(sample.disparity) >= 0 and np.nanmax(sample.disparity) <= 48 + 1e-3
+    assert not np.array_equal(generate(0, config).disparity, generate(0, curved).disparity)
+    assert VALIDATION_CONFIG.curved_surfaces == 0
+    with pytest.raises(ValueError, match="curved surfaces"):
+        SyntheticConfig(curved_surfaces=1.5)
+    with pytest.raises(ValueError, match="shapes"):
+        random_scene(np.random.default_rng(0), height=64, width=64, max_disparity=8, photo_probability=0,
+                     curved_surfaces=0.5)
 
 
 def test_renderer_refuses_an_uncovered_scene_and_edge_on_planes():

@@ -291,11 +291,18 @@ def test_the_data_levers_reach_the_generator() -> None:
     assert levers.synthetic.photometric.vignetting == (0.0, 0.2)
     # The levers change the pairs the trainer sees (the same example index, another right view).
     assert not np.array_equal(plain.sample(3)[0].right, levers.sample(3)[0].right)
+    curved = TrainingData("synthetic", seed=0, spec=BatchSpec(curved_surfaces=0.5))
+    assert plain.synthetic.curved_surfaces == 0 and curved.synthetic.curved_surfaces == 0.5
+    # Curved surfaces move only the objects that bulge: the crop and augmentation draws stay the same.
+    (a, rng_a), (b, rng_b) = plain.sample(3), curved.sample(3)
+    assert rng_a.random() == rng_b.random()
+    assert 0 < np.mean(a.disparity != b.disparity) < 0.9
 
 
 @pytest.mark.parametrize("flag, field, message", [
     ("--vignetting", "vignetting", "vignetting must be in [0, 1), got"),
     ("--clean-views", "clean_views", "clean views must be a share in [0, 1], got"),
+    ("--curved-surfaces", "curved_surfaces", "curved surfaces must be a share in [0, 1], got"),
 ])
 def test_bad_data_lever_values_are_refused(tmp_path, capsys, flag, field, message) -> None:
     with pytest.raises(ValueError, match=re.escape(message)):

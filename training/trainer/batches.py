@@ -44,6 +44,7 @@ class BatchSpec:
     rectification_error: bool = False  # synthetic: the right view slightly misaligned (Rectification())
     vignetting: float = 0.0        # synthetic: per-view radial fall-off drawn from [0, vignetting]
     clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
+    curved_surfaces: float = 0.0   # synthetic: share of objects that bulge towards the cameras, shaded
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
@@ -52,6 +53,8 @@ class BatchSpec:
             raise ValueError(f"vignetting must be in [0, 1), got {self.vignetting}")
         if not 0.0 <= self.clean_views <= 1.0:
             raise ValueError(f"clean views must be a share in [0, 1], got {self.clean_views}")
+        if not 0.0 <= self.curved_surfaces <= 1.0:
+            raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")
@@ -71,7 +74,8 @@ class TrainingData:
         self.synthetic = SyntheticConfig(
             height=spec.height, width=spec.width, max_disparity=spec.max_disparity,
             photometric=Photometric(vignetting=(0.0, spec.vignetting)),
-            rectification=Rectification() if spec.rectification_error else None)
+            rectification=Rectification() if spec.rectification_error else None,
+            curved_surfaces=spec.curved_surfaces)
         self.clean = dataclasses.replace(self.synthetic, photometric=None)
 
     @property

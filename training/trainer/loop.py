@@ -60,6 +60,7 @@ class TrainConfig:
     rectification_error: bool = False   # synthetic right views slightly misaligned (batches.BatchSpec)
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
+    curved_surfaces: float = 0.0        # synthetic: share of objects that bulge towards the cameras
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES_SPEC             # evaluation only; "" skips it
@@ -98,7 +99,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     spec = BatchSpec(height=config.crop[0], width=config.crop[1], max_disparity=config.max_disparity,
                      patches_per_pair=per_example, augmentation=config.augmentation,
                      rectification_error=config.rectification_error, vignetting=config.vignetting,
-                     clean_views=config.clean_views, patch=get_config(config.config).patch)
+                     clean_views=config.clean_views, curved_surfaces=config.curved_surfaces,
+                     patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)
     examples_per_step = 4 if config.mode == "patch" else config.batch_size
 

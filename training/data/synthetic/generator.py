@@ -20,8 +20,20 @@ from service.datasets import StereoSample
 from training.data.photos import data_folder
 
 from .photometric import Photometric, Rectification, apply_camera, rectify_imperfectly
-from .scene import Below, Ellipse, Everywhere, Layer, Plane, Polygon, Segment, render
-from .textures import random_texture
+from .scene import (
+    DOME_MAX_SLOPE,
+    Below,
+    Dome,
+    Ellipse,
+    Everywhere,
+    Layer,
+    Plane,
+    Polygon,
+    Segment,
+    Shaded,
+    render,
+)
+from .textures import ImageTexture, random_texture
 
 VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
@@ -35,12 +47,15 @@ class SyntheticConfig:
     photo_probability: float = 0.35     # share of surfaces painted with a photo
     photometric: Photometric | None = dataclasses.field(default_factory=Photometric)
     rectification: Rectification | None = None   # residual rectification error of the right view (training)
+    curved_surfaces: float = 0.0        # training: share of objects that bulge towards the cameras, shaded
 
     def __post_init__(self) -> None:
         if self.height < 8 or self.width < 8:
             raise ValueError(f"synthetic images must be at least 8 x 8, got {self.height} x {self.width}")
         if self.max_disparity < 1:
             raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
+        if not 0.0 <= self.curved_surfaces <= 1.0:
+            raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
 
 
 # The validation split: fixed seeds, size and range (documented in docs/data.md; never change them).
@@ -50,8 +65,12 @@ VALIDATION_CONFIG = SyntheticConfig(height=256, width=512, max_disparity=128)
 def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSample:
     """The synthetic pair of ``seed``: same seed and config, same pixels."""
     rng = np.random.default_rng(seed)
+    # The curved surfaces draw from a stream of their own, so that a scene keeps every other layer, its
+    # textures and its cameras with the lever on (and draws nothing more with it off).
+    shapes = np.random.default_rng([seed, 1]) if config.curved_surfaces else None
     layers = random_scene(rng, height=config.height, width=config.width,
-                          max_disparity=config.max_disparity, photo_probability=config.photo_probability)
+                          max_disparity=config.max_disparity, photo_probability=config.photo_probability,
+                          curved_surfaces=config.curved_surfaces, shapes=shapes)
     rendering = render(layers, height=config.height, width=config.width)
     left = apply_camera(rendering.left, rng, config.photometric)
     right = rendering.right
@@ -115,9 +134,14 @@ def _pair_count(argument: str) -> int:
 
 
 def random_scene(rng: np.random.Generator, *, height: int, width: int, max_disparity: int,
-                 photo_probability: float) -> list[Layer]:
-    """Layers of a random scene; disparities stay within [0, max_disparity]."""
+                 photo_probability: float, curved_surfaces: float = 0.0,
+                 shapes: np.random.Generator | None = None) -> list[Layer]:
+    """Layers of a random scene; disparities stay within [0, max_disparity]. With ``curved_surfaces`` > 0,
+    that share of the objects bulge towards the cameras (``Dome``, shaded), drawn from ``shapes``."""
+    if curved_surfaces and shapes is None:
+        raise ValueError("curved surfaces draw from a generator of their own: pass shapes")
     builder = _SceneBuilder(rng, height, width, float(max_disparity), photo_probability)
+    builder.curved_surfaces, builder.shapes = curved_surfaces, shapes
     far = rng.uniform(0, 0.2) * max_disparity
     for _ in range(1 + (rng.random() < 0.4) + (rng.random() < 0.15)):
         builder.background(far + rng.uniform(0, 0.1) * max_disparity)
@@ -141,6 +165,7 @@ class _SceneBuilder:
         self.rng, self.height, self.width, self.dmax = rng, height, width, max_disparity
         self.photo_probability = photo_probability
         self.layers: list[Layer] = []
+        self.curved_surfaces, self.shapes = 0.0, None
 
     def background(self, disparity: float) -> None:
         rng, reach = self.rng, self.width + self.dmax
@@ -176,7 +201,14 @@ class _SceneBuilder:
             outline = Polygon(np.stack([cx + radii * np.cos(angles), cy + radii * np.sin(angles)], axis=1))
         box = (cx - radius, cy - radius, cx + radius, cy + radius)
         a, b = rng.uniform(-0.25, 0.25, 2) * min(1.0, disparity / max(radius, 1.0))
-        self._add(self._fit(a, b, disparity, box), outline, box)
+        plane = self._fit(a, b, disparity, box)
+        texture = self._texture(box)
+        if self.shapes is not None and self.shapes.random() < self.curved_surfaces:
+            ellipse = outline if isinstance(outline, Ellipse) else Ellipse(cx, cy, radius, radius)
+            dome, texture = self._bulge(plane, ellipse, box, texture)
+            self.layers.append(Layer(dome, outline, texture))
+        else:
+            self.layers.append(Layer(plane, outline, texture))
 
     def thin(self) -> None:
         rng = self.rng
@@ -204,6 +236,27 @@ class _SceneBuilder:
         for i in range(count):
             x = x0 + i * spacing
             self.layers.append(Layer(plane, Segment(x, top, x, bottom, half_width), texture))
+
+    def _bulge(self, plane: Plane, ellipse: Ellipse, box: tuple[float, float, float, float],
+               texture: ImageTexture) -> tuple[Dome, Shaded]:
+        """The object as a solid ``relief`` times its radius high: a sphere of image radius r at disparity d
+        seen with a focal length of f pixels comes nearer by about d r / f at its centre. The bulge is cut
+        to stay inside [0, max_disparity] and below ``DOME_MAX_SLOPE``."""
+        shapes = self.shapes
+        assert shapes is not None
+        relief = shapes.uniform(0.3, 1.0)
+        focal = shapes.uniform(0.5, 1.5) * self.width
+        radius = (ellipse.rx + ellipse.ry) / 2
+        height = plane.at(np.float64(ellipse.cx), np.float64(ellipse.cy)) * relief * radius / focal
+        x0, y0, x1, y1 = box
+        highest = max(plane.at(np.float64(x), np.float64(y)) for x in (x0, x1) for y in (y0, y1))
+        steepest = (DOME_MAX_SLOPE - abs(plane.a)) * min(ellipse.rx, ellipse.ry) / 2
+        height = float(np.clip(min(height, self.dmax - highest, 0.999 * steepest), 0.0, None))
+        dome = Dome(plane, ellipse.cx, ellipse.cy, ellipse.rx, ellipse.ry, ellipse.angle, height)
+        azimuth, elevation = shapes.uniform(0, 2 * np.pi), shapes.uniform(np.pi / 6, 5 * np.pi / 12)
+        light = (float(np.cos(elevation) * np.cos(azimuth)), float(np.cos(elevation) * np.sin(azimuth)),
+                 float(np.sin(elevation)))
+        return dome, Shaded(texture, dome, relief, light, ambient=float(shapes.uniform(0.2, 0.6)))
 
     def _fit(self, a: float, b: float, disparity: float, box: tuple[float, float, float, float]) -> Plane:
         """Plane with slopes a, b whose mean over ``box`` is ``disparity``, slopes shrunk to stay in range."""

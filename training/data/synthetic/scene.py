@@ -1,14 +1,16 @@
 """Layered scenes in disparity space and their exact two-view rendering.
 
-A scene is a stack of planar layers. Each layer is a plane in disparity space, ``d = a x + b y + c`` in
-left-image pixels (a 3-D plane seen by a rectified pair is exactly such a plane), an outline in the left
-image that says where the surface exists, and a texture painted on the surface (texture coordinates are
-the surface point's left-image coordinates, so both views see the same paint).
+A scene is a stack of layers. Each layer is a surface in disparity space, usually a plane
+``d = a x + b y + c`` in left-image pixels (a 3-D plane seen by a rectified pair is exactly such a plane),
+sometimes a plane with a smooth bulge towards the cameras (``Dome``, a training-only lever); an outline in
+the left image that says where the surface exists; and a texture painted on the surface (texture
+coordinates are the surface point's left-image coordinates, so both views see the same paint).
 
-Both views are ray-cast, never warped: a right pixel ``x_r`` meets layer k at the left abscissa
-``x = (x_r + b y + c) / (1 - a)`` (solve ``x_r = x - d(x, y)``), which is inside the layer or not. A z-buffer
-keeps the largest disparity (the nearest surface). So the right view has no holes and no resampling
-cracks, occlusions are exact, and the disparity ground truth is the float value of the visible plane.
+Both views are ray-cast, never warped: a right pixel ``x_r`` meets layer k at the left abscissa ``x`` that
+solves ``x_r = x - d(x, y)`` (``(x_r + b y + c) / (1 - a)`` for a plane), which is inside the layer or not.
+A z-buffer keeps the largest disparity (the nearest surface). So the right view has no holes and no
+resampling cracks, occlusions are exact, and the disparity ground truth is the float value of the visible
+surface.
 """
 
 from __future__ import annotations
@@ -41,6 +43,103 @@ class Plane:
     def left_x(self, x_right: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Left abscissa of the plane point that the right view sees at ``x_right``."""
         return (x_right + self.b * y + self.c) / (1.0 - self.a)
+
+
+class Surface(Protocol):
+    """A layer's disparity ``d(x, y)`` in left-image pixels, seen by both views."""
+
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray: ...
+
+    def left_x(self, x_right: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Left abscissa of the surface point that the right view sees at ``x_right``."""
+        ...
+
+
+# A dome's disparity may change by at most this much per pixel along a row (|dd/dx|): the fixed point of
+# its ray casting then contracts by half an iteration, and the right view never sees it edge-on.
+DOME_MAX_SLOPE = 0.5
+_DOME_ITERATIONS = 40  # at most: 0.5 ** 40 is far below float32's resolution of any abscissa
+_DOME_CONVERGED = 1e-4  # px: the iteration stops once no abscissa moves more
+
+
+@dataclasses.dataclass(frozen=True)
+class Dome:
+    """A plane with a paraboloid bulge towards the cameras over an ellipse: the disparity of a gently
+    curved object (a ball, a cone's flank, a cushion) seen by a rectified pair,
+    ``d = plane(x, y) + height * max(0, 1 - r^2)``, r the ellipse's normalised radius (r = 1 on its rim).
+
+    The right view's ray casting solves ``x = x_r + d(x, y)`` by fixed-point iteration from the plane's
+    solution; ``DOME_MAX_SLOPE`` bounds ``|dd/dx|`` so that the iteration contracts.
+    """
+
+    plane: Plane
+    cx: float
+    cy: float
+    rx: float
+    ry: float
+    angle: float
+    height: float
+
+    def __post_init__(self) -> None:
+        if not (self.rx > 0 and self.ry > 0 and self.height >= 0):
+            raise ValueError(f"a dome needs positive radii and a height >= 0, got {self.rx}, {self.ry}, "
+                             f"{self.height}")
+        if abs(self.plane.a) + self.max_bulge_slope > DOME_MAX_SLOPE:
+            raise ValueError(f"dome too steep: |a| + 2 height / min radius = "
+                             f"{abs(self.plane.a) + self.max_bulge_slope:.3f} > {DOME_MAX_SLOPE}")
+
+    @property
+    def max_bulge_slope(self) -> float:
+        """The largest |dd/dx| the bulge adds (on its rim, along its shorter axis)."""
+        return 2.0 * self.height / min(self.rx, self.ry)
+
+    def _frame(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v): the ellipse's own axes, scaled so that its rim is u^2 + v^2 = 1."""
+        cos, sin = np.cos(self.angle), np.sin(self.angle)
+        dx, dy = x - self.cx, y - self.cy
+        return (cos * dx + sin * dy) / self.rx, (-sin * dx + cos * dy) / self.ry
+
+    def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        u, v = self._frame(x, y)
+        return self.plane.at(x, y) + self.height * np.maximum(0.0, 1.0 - u * u - v * v)
+
+    def left_x(self, x_right: np.ndarray, y: np.ndarray) -> np.ndarray:
+        x = self.plane.left_x(x_right, y)
+        for _ in range(_DOME_ITERATIONS):
+            x, previous = x_right + self.at(x, y), x
+            if np.max(np.abs(x - previous), initial=0.0) < _DOME_CONVERGED:
+                break
+        return x
+
+    def normal(self, x: np.ndarray, y: np.ndarray, relief: float) -> np.ndarray:
+        """Unit normals (..., 3) of the solid whose depth profile is the bulge's, ``relief`` times its mean
+        radius high at the centre (x right, y down, z towards the cameras), for shading."""
+        u, v = self._frame(x, y)
+        inside = (u * u + v * v) <= 1.0
+        scale = 2.0 * relief * (self.rx + self.ry) / 2.0
+        du, dv = np.where(inside, -scale * u / self.rx, 0.0), np.where(inside, -scale * v / self.ry, 0.0)
+        cos, sin = np.cos(self.angle), np.sin(self.angle)
+        dz_dx, dz_dy = cos * du - sin * dv, sin * du + cos * dv
+        normal = np.stack([-dz_dx, -dz_dy, np.ones_like(dz_dx)], axis=-1)
+        return normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class Shaded:
+    """A dome's texture lit by a distant light as a matte (Lambertian) surface reflects it: the brightness
+    depends on the surface normal only, not on the viewpoint, so both views still show the same paint.
+    Real curved objects are shaded, the generator's planes are not."""
+
+    texture: Texture
+    dome: Dome
+    relief: float                        # the solid's height over its mean radius (Dome.normal)
+    light: tuple[float, float, float]    # unit vector towards the light (z towards the cameras)
+    ambient: float                       # brightness where the light does not reach
+
+    def sample(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        lambert = np.clip(self.dome.normal(x, y, self.relief) @ np.asarray(self.light), 0.0, None)
+        shade = (self.ambient + (1.0 - self.ambient) * lambert).astype(np.float32)
+        return self.texture.sample(x, y) * shade[:, None]
 
 
 class Outline(Protocol):
@@ -147,7 +246,7 @@ class Segment:
 
 @dataclasses.dataclass(frozen=True)
 class Layer:
-    plane: Plane
+    surface: Surface
     outline: Outline
     texture: Texture
 
@@ -186,8 +285,9 @@ def _cast(layers: list[Layer], height: int, width: int, *, right_view: bool
         if top >= bottom:
             continue
         y = np.arange(top, bottom, dtype=np.float32)[:, None]
-        x = layer.plane.left_x(columns, y) if right_view else np.broadcast_to(columns, (bottom - top, width))
-        d = layer.plane.at(x, y)
+        surface = layer.surface
+        x = surface.left_x(columns, y) if right_view else np.broadcast_to(columns, (bottom - top, width))
+        d = surface.at(x, y)
         nearer = layer.outline.contains(x, y) & (d > disparity[top:bottom])
         disparity[top:bottom][nearer] = d[nearer]
         owner[top:bottom][nearer] = index
@@ -216,8 +316,8 @@ def _occluded(layers: list[Layer], disparity: np.ndarray, rows: np.ndarray) -> n
         if top >= bottom:
             continue
         xr, y = x_right[top:bottom], rows[top:bottom]
-        x = layer.plane.left_x(xr, y)
-        in_front = layer.outline.contains(x, y) & (layer.plane.at(x, y) > disparity[top:bottom]
+        x = layer.surface.left_x(xr, y)
+        in_front = layer.outline.contains(x, y) & (layer.surface.at(x, y) > disparity[top:bottom]
                                                    + _OCCLUSION_TOLERANCE)
         occluded[top:bottom] |= in_front
     return occluded
