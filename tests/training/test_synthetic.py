@@ -130,6 +130,7 @@ def test_shading_is_the_same_paint_in_both_views_and_darkens_away_from_the_light
     assert lit.sample(x, y).dtype == np.float32
 
 
+@pytest.mark.torch  # the train extra: scikit-image's photos paint the scenes
 def test_curved_surfaces_leave_the_rest_of_the_scene_and_the_split_unchanged():
     config = SyntheticConfig(height=96, width=192, max_disparity=48)
     curved = SyntheticConfig(height=96, width=192, max_disparity=48, curved_surfaces=1.0)
