@@ -140,8 +140,8 @@ def random_scene(rng: np.random.Generator, *, height: int, width: int, max_dispa
     that share of the objects bulge towards the cameras (``Dome``, shaded), drawn from ``shapes``."""
     if curved_surfaces and shapes is None:
         raise ValueError("curved surfaces draw from a generator of their own: pass shapes")
-    builder = _SceneBuilder(rng, height, width, float(max_disparity), photo_probability)
-    builder.curved_surfaces, builder.shapes = curved_surfaces, shapes
+    builder = _SceneBuilder(rng, height, width, float(max_disparity), photo_probability, curved_surfaces,
+                            shapes)
     far = rng.uniform(0, 0.2) * max_disparity
     for _ in range(1 + (rng.random() < 0.4) + (rng.random() < 0.15)):
         builder.background(far + rng.uniform(0, 0.1) * max_disparity)
@@ -161,11 +161,12 @@ class _SceneBuilder:
     """Draws layer parameters; keeps each plane's disparity inside [0, max_disparity] where it is seen."""
 
     def __init__(self, rng: np.random.Generator, height: int, width: int, max_disparity: float,
-                 photo_probability: float):
+                 photo_probability: float, curved_surfaces: float = 0.0,
+                 shapes: np.random.Generator | None = None):
         self.rng, self.height, self.width, self.dmax = rng, height, width, max_disparity
         self.photo_probability = photo_probability
+        self.curved_surfaces, self.shapes = curved_surfaces, shapes
         self.layers: list[Layer] = []
-        self.curved_surfaces, self.shapes = 0.0, None
 
     def background(self, disparity: float) -> None:
         rng, reach = self.rng, self.width + self.dmax
