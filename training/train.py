@@ -88,6 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="synthetic data: this share of the objects bulge towards the cameras (a "
                              "paraboloid in disparity) and are shaded as matte solids; the rest of each "
                              "scene stays that of a run without it (default 0; docs/data.md)")
+    parser.add_argument("--fine-textures", type=float, default=0.0, metavar="P",
+                        help="synthetic data: paint this share of the surfaces at twice the spatial "
+                             "frequency (finer detail, as real photographs have); the rest of each scene "
+                             "stays that of a run without it (default 0; docs/data.md)")
     parser.add_argument("--val-every", type=int, default=200)
     parser.add_argument("--val-pairs", type=int, default=8, help="synthetic validation pairs per validation")
     parser.add_argument("--cones", default=CONES_SPEC, help="evaluation-only real pair SPEC ('' to skip)")
@@ -142,8 +146,8 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
-    # (--edge-weight, --vignetting, --clean-views and --curved-surfaces are checked where they are used,
-    # NaN included.)
+    # (--edge-weight, --vignetting, --clean-views, --curved-surfaces and --fine-textures are checked where
+    # they are used, NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
               ("time-budget", args.time_budget, False))
     for name, value, positive in floats:
@@ -206,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
-                         curved_surfaces=args.curved_surfaces,
+                         curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,
                          val_every=args.val_every, val_pairs=args.val_pairs, cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,
                          time_budget_s=args.time_budget,

@@ -26,7 +26,7 @@ from training.data.synthetic.scene import (
     Shaded,
     render,
 )
-from training.data.synthetic.textures import PHOTOS, ImageTexture, load_photos
+from training.data.synthetic.textures import PHOTOS, ImageTexture, load_photos, minified
 
 
 class SurfaceCoordinates:
@@ -154,6 +154,56 @@ def test_curved_surfaces_leave_the_rest_of_the_scene_and_the_split_unchanged():
     with pytest.raises(ValueError, match="shapes"):
         random_scene(np.random.default_rng(0), height=64, width=64, max_disparity=8, photo_probability=0,
                      curved_surfaces=0.5)
+
+
+def test_a_minified_texture_shows_the_block_means_at_twice_the_frequency():
+    image = np.random.default_rng(0).random((8, 10, 3), dtype=np.float32)
+    texture = ImageTexture(image, origin=(2.0, -1.0), tint=(1.0, 0.5, 1.0))
+    small = minified(texture)
+    assert small.image.shape == (4, 5, 3) and small.image.dtype == np.float32
+    assert (small.origin, small.scale, small.tint) == (texture.origin, texture.scale, texture.tint)
+    # Surface point origin + (i, j) now shows the mean of the 2 x 2 block that origin + (2i, 2j) began.
+    x, y = np.array([2.0, 3.0, 6.0]), np.array([-1.0, 0.0, 2.0])
+    blocks = image.reshape(4, 2, 5, 2, 3).mean(axis=(1, 3)) * np.float32([1.0, 0.5, 1.0])
+    np.testing.assert_allclose(small.sample(x, y), blocks[[0, 1, 3], [0, 1, 4]], rtol=1e-6)
+    odd = minified(ImageTexture(image[:7, :9]))
+    np.testing.assert_array_equal(odd.image, image[:6, :8].reshape(3, 2, 4, 2, 3).mean(axis=(1, 3)))
+
+
+@pytest.mark.torch  # the train extra: scikit-image's photos paint the scenes
+def test_fine_textures_repaint_that_share_of_the_surfaces_and_leave_the_rest_alone():
+    def scene(fine: float) -> list[Layer]:
+        return random_scene(np.random.default_rng(5), height=96, width=192, max_disparity=48,
+                            photo_probability=0.35, fine_textures=fine,
+                            detail=np.random.default_rng([5, 2]) if fine else None)
+
+    plain, some, every = scene(0.0), scene(0.5), scene(1.0)
+    # The geometry is the same scene's; only textures change, and with the share at 1 every one does.
+    for layers in (some, every):
+        assert [layer.surface for layer in layers] == [layer.surface for layer in plain]
+        assert [repr(layer.outline) for layer in layers] == [repr(layer.outline) for layer in plain]
+
+    def repainted(layers: list[Layer]) -> list[bool]:
+        pairs = zip(plain, layers, strict=True)
+        return [not np.array_equal(a.texture.image, b.texture.image) for a, b in pairs]
+
+    assert any(repainted(some)) and not all(repainted(some)) and all(repainted(every))
+    # Twice the frequency: the repainted surfaces' paint changes about twice as fast along a row.
+    config = SyntheticConfig(height=96, width=192, max_disparity=48, photometric=None)
+    fine = SyntheticConfig(height=96, width=192, max_disparity=48, photometric=None, fine_textures=1.0)
+    def roughness(sample) -> float:
+        grey = sample.left.mean(axis=2)
+        return float(np.median(np.abs(np.diff(grey, axis=1))))
+    plain_roughness = np.mean([roughness(generate(seed, config)) for seed in range(6)])
+    fine_roughness = np.mean([roughness(generate(seed, fine)) for seed in range(6)])
+    assert fine_roughness > 1.4 * plain_roughness
+    np.testing.assert_array_equal(generate(2, config).disparity, generate(2, fine).disparity)
+    assert VALIDATION_CONFIG.fine_textures == 0
+    with pytest.raises(ValueError, match="fine textures"):
+        SyntheticConfig(fine_textures=-0.5)
+    with pytest.raises(ValueError, match="detail"):
+        random_scene(np.random.default_rng(0), height=64, width=64, max_disparity=8, photo_probability=0,
+                     fine_textures=0.5)
 
 
 def test_renderer_refuses_an_uncovered_scene_and_edge_on_planes():

@@ -297,12 +297,20 @@ def test_the_data_levers_reach_the_generator() -> None:
     (a, rng_a), (b, rng_b) = plain.sample(3), curved.sample(3)
     assert rng_a.random() == rng_b.random()
     assert 0 < np.mean(a.disparity != b.disparity) < 0.9
+    fine = TrainingData("synthetic", seed=0, spec=BatchSpec(fine_textures=0.5))
+    assert plain.synthetic.fine_textures == 0 and fine.synthetic.fine_textures == 0.5
+    # Fine textures repaint surfaces only: the same disparities, crop and augmentation draws, other pixels.
+    (a, rng_a), (c, rng_c) = plain.sample(3), fine.sample(3)
+    assert rng_a.random() == rng_c.random()
+    np.testing.assert_array_equal(a.disparity, c.disparity)
+    assert not np.array_equal(a.left, c.left)
 
 
 @pytest.mark.parametrize("flag, field, message", [
     ("--vignetting", "vignetting", "vignetting must be in [0, 1), got"),
     ("--clean-views", "clean_views", "clean views must be a share in [0, 1], got"),
     ("--curved-surfaces", "curved_surfaces", "curved surfaces must be a share in [0, 1], got"),
+    ("--fine-textures", "fine_textures", "fine textures must be a share in [0, 1], got"),
 ])
 def test_bad_data_lever_values_are_refused(tmp_path, capsys, flag, field, message) -> None:
     with pytest.raises(ValueError, match=re.escape(message)):

@@ -45,6 +45,7 @@ class BatchSpec:
     vignetting: float = 0.0        # synthetic: per-view radial fall-off drawn from [0, vignetting]
     clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
     curved_surfaces: float = 0.0   # synthetic: share of objects that bulge towards the cameras, shaded
+    fine_textures: float = 0.0     # synthetic: share of surfaces painted at twice the spatial frequency
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
@@ -55,6 +56,8 @@ class BatchSpec:
             raise ValueError(f"clean views must be a share in [0, 1], got {self.clean_views}")
         if not 0.0 <= self.curved_surfaces <= 1.0:
             raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
+        if not 0.0 <= self.fine_textures <= 1.0:
+            raise ValueError(f"fine textures must be a share in [0, 1], got {self.fine_textures}")
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")
@@ -75,7 +78,7 @@ class TrainingData:
             height=spec.height, width=spec.width, max_disparity=spec.max_disparity,
             photometric=Photometric(vignetting=(0.0, spec.vignetting)),
             rectification=Rectification() if spec.rectification_error else None,
-            curved_surfaces=spec.curved_surfaces)
+            curved_surfaces=spec.curved_surfaces, fine_textures=spec.fine_textures)
         self.clean = dataclasses.replace(self.synthetic, photometric=None)
 
     @property

@@ -61,6 +61,7 @@ class TrainConfig:
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
     curved_surfaces: float = 0.0        # synthetic: share of objects that bulge towards the cameras
+    fine_textures: float = 0.0          # synthetic: share of surfaces painted at twice the frequency
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES_SPEC             # evaluation only; "" skips it
@@ -100,6 +101,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
                      patches_per_pair=per_example, augmentation=config.augmentation,
                      rectification_error=config.rectification_error, vignetting=config.vignetting,
                      clean_views=config.clean_views, curved_surfaces=config.curved_surfaces,
+                     fine_textures=config.fine_textures,
                      patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)
     examples_per_step = 4 if config.mode == "patch" else config.batch_size

@@ -33,7 +33,7 @@ from .scene import (
     Shaded,
     render,
 )
-from .textures import ImageTexture, random_texture
+from .textures import ImageTexture, minified, random_texture
 
 VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
@@ -48,6 +48,7 @@ class SyntheticConfig:
     photometric: Photometric | None = dataclasses.field(default_factory=Photometric)
     rectification: Rectification | None = None   # residual rectification error of the right view (training)
     curved_surfaces: float = 0.0        # training: share of objects that bulge towards the cameras, shaded
+    fine_textures: float = 0.0          # training: share of surfaces painted at twice the spatial frequency
 
     def __post_init__(self) -> None:
         if self.height < 8 or self.width < 8:
@@ -56,6 +57,8 @@ class SyntheticConfig:
             raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
         if not 0.0 <= self.curved_surfaces <= 1.0:
             raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
+        if not 0.0 <= self.fine_textures <= 1.0:
+            raise ValueError(f"fine textures must be a share in [0, 1], got {self.fine_textures}")
 
 
 # The validation split: fixed seeds, size and range (documented in docs/data.md; never change them).
@@ -67,10 +70,13 @@ def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSa
     rng = np.random.default_rng(seed)
     # The curved surfaces draw from a stream of their own, so that a scene keeps every other layer, its
     # textures and its cameras with the lever on (and draws nothing more with it off).
+    # The fine textures likewise.
     shapes = np.random.default_rng([seed, 1]) if config.curved_surfaces else None
+    detail = np.random.default_rng([seed, 2]) if config.fine_textures else None
     layers = random_scene(rng, height=config.height, width=config.width,
                           max_disparity=config.max_disparity, photo_probability=config.photo_probability,
-                          curved_surfaces=config.curved_surfaces, shapes=shapes)
+                          curved_surfaces=config.curved_surfaces, shapes=shapes,
+                          fine_textures=config.fine_textures, detail=detail)
     rendering = render(layers, height=config.height, width=config.width)
     left = apply_camera(rendering.left, rng, config.photometric)
     right = rendering.right
@@ -135,13 +141,18 @@ def _pair_count(argument: str) -> int:
 
 def random_scene(rng: np.random.Generator, *, height: int, width: int, max_disparity: int,
                  photo_probability: float, curved_surfaces: float = 0.0,
-                 shapes: np.random.Generator | None = None) -> list[Layer]:
+                 shapes: np.random.Generator | None = None, fine_textures: float = 0.0,
+                 detail: np.random.Generator | None = None) -> list[Layer]:
     """Layers of a random scene; disparities stay within [0, max_disparity]. With ``curved_surfaces`` > 0,
-    that share of the objects bulge towards the cameras (``Dome``, shaded), drawn from ``shapes``."""
+    that share of the objects bulge towards the cameras (``Dome``, shaded), drawn from ``shapes``; with
+    ``fine_textures`` > 0, that share of the surfaces is painted at twice the spatial frequency (the texture
+    drawn from ``detail`` over twice the region, then ``minified``)."""
     if curved_surfaces and shapes is None:
         raise ValueError("curved surfaces draw from a generator of their own: pass shapes")
+    if fine_textures and detail is None:
+        raise ValueError("fine textures draw from a generator of their own: pass detail")
     builder = _SceneBuilder(rng, height, width, float(max_disparity), photo_probability, curved_surfaces,
-                            shapes)
+                            shapes, fine_textures, detail)
     far = rng.uniform(0, 0.2) * max_disparity
     for _ in range(1 + (rng.random() < 0.4) + (rng.random() < 0.15)):
         builder.background(far + rng.uniform(0, 0.1) * max_disparity)
@@ -162,10 +173,12 @@ class _SceneBuilder:
 
     def __init__(self, rng: np.random.Generator, height: int, width: int, max_disparity: float,
                  photo_probability: float, curved_surfaces: float = 0.0,
-                 shapes: np.random.Generator | None = None):
+                 shapes: np.random.Generator | None = None, fine_textures: float = 0.0,
+                 detail: np.random.Generator | None = None):
         self.rng, self.height, self.width, self.dmax = rng, height, width, max_disparity
         self.photo_probability = photo_probability
         self.curved_surfaces, self.shapes = curved_surfaces, shapes
+        self.fine_textures, self.detail = fine_textures, detail
         self.layers: list[Layer] = []
 
     def background(self, disparity: float) -> None:
@@ -270,10 +283,17 @@ class _SceneBuilder:
             a, b = a * shrink, b * shrink
         return Plane(a, b, disparity - a * cx - b * cy)
 
-    def _texture(self, box: tuple[float, float, float, float]):
+    def _texture(self, box: tuple[float, float, float, float]) -> ImageTexture:
         x0, y0, x1, y1 = (float(v) for v in box)
-        return random_texture(self.rng, height=int(np.ceil(y1 - y0)) + 1, width=int(np.ceil(x1 - x0)) + 1,
-                              origin=(x0, y0), photo_probability=self.photo_probability)
+        height, width = int(np.ceil(y1 - y0)) + 1, int(np.ceil(x1 - x0)) + 1
+        texture = random_texture(self.rng, height=height, width=width, origin=(x0, y0),
+                                 photo_probability=self.photo_probability)
+        # The scene's own texture is drawn either way, so the rest of the scene stays that of a run without
+        # the lever; a fine one replaces it.
+        if self.detail is not None and self.detail.random() < self.fine_textures:
+            texture = minified(random_texture(self.detail, height=2 * height, width=2 * width,
+                                              origin=(x0, y0), photo_probability=self.photo_probability))
+        return texture
 
     def _add(self, plane: Plane, outline, box: tuple[float, float, float, float]) -> None:
         self.layers.append(Layer(plane, outline, self._texture(box)))

@@ -82,6 +82,21 @@ def random_texture(rng: np.random.Generator, *, height: int, width: int, origin:
     return ImageTexture(_colorize(field, rng), origin=origin)
 
 
+def minified(texture: ImageTexture) -> ImageTexture:
+    """The texture at twice its spatial frequency: its image averaged over 2 x 2 blocks, laid with the same
+    origin and scale. The box prefilter keeps the finer paint from aliasing; drawn on a region twice the
+    surface's size, a procedural texture then covers the surface without mirroring.
+
+    >>> minified(ImageTexture(np.zeros((9, 6, 3), np.float32))).image.shape
+    (4, 3, 3)
+    """
+    height, width = texture.image.shape[0] // 2 * 2, texture.image.shape[1] // 2 * 2
+    if height == 0 or width == 0:
+        return texture
+    blocks = texture.image[:height, :width].reshape(height // 2, 2, width // 2, 2, 3)
+    return dataclasses.replace(texture, image=blocks.mean(axis=(1, 3), dtype=np.float32))
+
+
 def value_noise(rng: np.random.Generator, height: int, width: int, *, octaves: int, period: float,
                 persistence: float) -> np.ndarray:
     """Multi-octave value noise in [0, 1]: random lattices upsampled bicubically, halving the period."""
