@@ -8,6 +8,9 @@ SPEC string:
                           the generator of the train extra, found through an entry point (extensions.py)
     synthetic-clean[:N]   the same scenes without camera effects (no noise, blur, gain or JPEG): a
                           diagnostic of how much of the split's error the cameras cause
+    synthetic-curved[:N]  the same scenes and cameras with half the objects curved and shaded, and
+    synthetic-fine[:N]    with half the surfaces painted at twice the spatial frequency: what the
+                          training levers of those names add, measured on a matcher
     motorcycle            Middlebury 2014's Motorcycle at quarter size, as scikit-image's wheel ships
                           it: a second real pair, evaluation only (train extra)
     kitti2012:PATH        KITTI 2012 (colored_0, colored_1, disp_occ, disp_noc)

@@ -27,6 +27,8 @@ class ExtraKind(NamedTuple):
 # This project's kinds that an extra provides: named in the SPEC help and in the error when it is missing.
 EXTRA_KINDS = {"synthetic": ExtraKind(extra="train", usage="synthetic[:N]"),
                "synthetic-clean": ExtraKind(extra="train", usage="synthetic-clean[:N]"),
+               "synthetic-curved": ExtraKind(extra="train", usage="synthetic-curved[:N]"),
+               "synthetic-fine": ExtraKind(extra="train", usage="synthetic-fine[:N]"),
                "motorcycle": ExtraKind(extra="train", usage="motorcycle")}
 
 

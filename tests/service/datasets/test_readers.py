@@ -15,7 +15,12 @@ from service.datasets.readers import KITTI_MAX_DISPARITY, detect_kind
 from service.io import write_disparity
 from training.data import photos
 from training.data.motorcycle import open_motorcycle
-from training.data.synthetic import open_clean_validation_split, open_validation_split
+from training.data.synthetic import (
+    open_clean_validation_split,
+    open_curved_validation_split,
+    open_fine_validation_split,
+    open_validation_split,
+)
 
 HEIGHT, WIDTH = 6, 10
 
@@ -142,9 +147,29 @@ def test_synthetic_clean_spec_is_the_same_scenes_without_camera_effects():
     assert difference.mean() < 1
 
 
+@pytest.mark.torch
+def test_lever_specs_are_the_same_scenes_and_cameras_with_the_lever_at_half():
+    plain = open_dataset("synthetic:3")
+    curved, fine = open_dataset("synthetic-curved:3"), open_dataset("synthetic-fine:3")
+    assert curved.name == "synthetic validation with curved surfaces (share 0.5) (3 pairs)"
+    assert fine.name == "synthetic validation with fine textures (share 0.5) (3 pairs)"
+    domes = 0
+    for a, b, c in zip(plain, curved, fine, strict=True):
+        assert a.name == b.name == c.name
+        # Fine paint leaves the geometry; curved objects move only where they bulge.
+        np.testing.assert_array_equal(a.disparity, c.disparity)
+        assert not np.array_equal(a.left, c.left)
+        changed = np.mean(a.disparity != b.disparity)
+        assert changed < 0.5
+        domes += changed > 0
+    assert domes
+
+
 @pytest.mark.parametrize("kind, module, function", [
     ("synthetic", "training.data.synthetic", open_validation_split),
     ("synthetic-clean", "training.data.synthetic", open_clean_validation_split),
+    ("synthetic-curved", "training.data.synthetic", open_curved_validation_split),
+    ("synthetic-fine", "training.data.synthetic", open_fine_validation_split),
     ("motorcycle", "training.data.motorcycle", open_motorcycle)])
 def test_train_extra_kinds_are_its_entry_points(kind, module, function):
     entry = extensions.registered()[kind]
@@ -179,6 +204,8 @@ def test_train_extra_kinds_without_it_name_the_extra_in_one_line(monkeypatch, ab
     ("synthetic:zero", "positive"),
     ("synthetic:0", "positive"),
     ("synthetic-clean:-3", "positive pair count, got '-3'"),
+    ("synthetic-fine:0", "positive pair count, got '0'"),
+    ("synthetic-curved:x", "positive pair count, got 'x'"),
     ("motorcycle:2", "takes no argument, got '2'"),
     ("kitti2015:", "needs the dataset folder"),
     ("sceneflow:/data", "expected synthetic"),

@@ -6,9 +6,10 @@
 - ``generator.py``: a seed -> a ``service.datasets.StereoSample``; the fixed validation split
 
 The runtime reads the validation split as the dataset SPEC ``synthetic[:N]`` (``synthetic-clean[:N]``:
-the same scenes without camera effects) without importing ``training``: pyproject.toml registers
-``open_validation_split`` and ``open_clean_validation_split`` in the ``adsm.datasets`` entry-point group,
-which ``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
+the same scenes without camera effects; ``synthetic-curved[:N]`` and ``synthetic-fine[:N]``: with the
+training levers of those names) without importing ``training``: pyproject.toml registers
+``open_validation_split`` and its siblings in the ``adsm.datasets`` entry-point group, which
+``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
 """
 
 from .generator import (
@@ -19,6 +20,8 @@ from .generator import (
     SyntheticStereo,
     generate,
     open_clean_validation_split,
+    open_curved_validation_split,
+    open_fine_validation_split,
     open_validation_split,
     random_scene,
     validation_split,
@@ -28,5 +31,6 @@ from .photometric import Photometric, Rectification, apply_camera
 __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
            "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate",
-           "open_clean_validation_split", "open_validation_split",
+           "open_clean_validation_split", "open_curved_validation_split", "open_fine_validation_split",
+           "open_validation_split",
            "random_scene", "validation_split"]

@@ -37,6 +37,7 @@ from .textures import ImageTexture, minified, random_texture
 
 VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
+DIAGNOSTIC_SHARE = 0.5                  # the lever's share in the SPECs synthetic-curved and synthetic-fine
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -107,14 +108,21 @@ class SyntheticStereo(Sequence[StereoSample]):
         return generate(self.first_seed + index % self.count, self.config)
 
 
-def validation_split(count: int = DEFAULT_VALIDATION_COUNT, *,
-                     camera_effects: bool = True) -> SyntheticStereo:
-    """The first ``count`` pairs of the fixed synthetic validation split; ``camera_effects=False``: the same
-    scenes rendered exactly (8-bit only), the diagnostic that tells the scenes' difficulty from the
-    cameras' (docs/data.md)."""
-    config = VALIDATION_CONFIG if camera_effects else dataclasses.replace(VALIDATION_CONFIG, photometric=None)
+def validation_split(count: int = DEFAULT_VALIDATION_COUNT, *, camera_effects: bool = True,
+                     curved_surfaces: float = 0.0, fine_textures: float = 0.0) -> SyntheticStereo:
+    """The first ``count`` pairs of the fixed synthetic validation split. The other arguments make
+    diagnostics of the same scenes (docs/data.md): ``camera_effects=False`` renders them exactly (8-bit
+    only), telling the scenes' difficulty from the cameras'; ``curved_surfaces`` and ``fine_textures``
+    apply the training levers of those names, so a matcher can be measured on what they add."""
+    config = dataclasses.replace(VALIDATION_CONFIG, curved_surfaces=curved_surfaces,
+                                 fine_textures=fine_textures)
+    if not camera_effects:
+        config = dataclasses.replace(config, photometric=None)
+    variants = [" without camera effects"] if not camera_effects else []
+    variants += [f" with {lever} (share {share:g})" for lever, share in
+                 (("curved surfaces", curved_surfaces), ("fine textures", fine_textures)) if share]
     split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=config)
-    split.name = f"synthetic validation{'' if camera_effects else ' without camera effects'} ({count} pairs)"
+    split.name = f"synthetic validation{','.join(variants)} ({count} pairs)"
     return split
 
 
@@ -130,6 +138,18 @@ def open_validation_split(argument: str) -> SyntheticStereo:
 def open_clean_validation_split(argument: str) -> SyntheticStereo:
     """The dataset SPEC ``synthetic-clean[:N]``: the split's first N scenes without camera effects."""
     return validation_split(_pair_count(argument), camera_effects=False)
+
+
+def open_curved_validation_split(argument: str) -> SyntheticStereo:
+    """The dataset SPEC ``synthetic-curved[:N]``: the split's first N scenes, cameras included, with the
+    ``curved_surfaces`` lever at ``DIAGNOSTIC_SHARE``."""
+    return validation_split(_pair_count(argument), curved_surfaces=DIAGNOSTIC_SHARE)
+
+
+def open_fine_validation_split(argument: str) -> SyntheticStereo:
+    """The dataset SPEC ``synthetic-fine[:N]``: the split's first N scenes, cameras included, with the
+    ``fine_textures`` lever at ``DIAGNOSTIC_SHARE``."""
+    return validation_split(_pair_count(argument), fine_textures=DIAGNOSTIC_SHARE)
 
 
 def _pair_count(argument: str) -> int:
