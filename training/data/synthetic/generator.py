@@ -69,9 +69,8 @@ VALIDATION_CONFIG = SyntheticConfig(height=256, width=512, max_disparity=128)
 def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSample:
     """The synthetic pair of ``seed``: same seed and config, same pixels."""
     rng = np.random.default_rng(seed)
-    # The curved surfaces draw from a stream of their own, so that a scene keeps every other layer, its
-    # textures and its cameras with the lever on (and draws nothing more with it off).
-    # The fine textures likewise.
+    # The curved surfaces and the fine textures draw from streams of their own, so that a scene keeps
+    # every other layer, texture and camera with a lever on (and draws nothing more with it off).
     shapes = np.random.default_rng([seed, 1]) if config.curved_surfaces else None
     detail = np.random.default_rng([seed, 2]) if config.fine_textures else None
     layers = random_scene(rng, height=config.height, width=config.width,
