@@ -20,7 +20,14 @@ from service.datasets import StereoSample, open_dataset
 from service.datasets.readers import detect_kind
 from training.data.evaluation_only import EVALUATION_ONLY, MOTORCYCLE_SPEC
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
-from training.data.synthetic import VALIDATION_SEED, Photometric, Rectification, SyntheticConfig, generate
+from training.data.synthetic import (
+    VALIDATION_SEED,
+    Photometric,
+    Rectification,
+    SyntheticConfig,
+    check_share,
+    generate,
+)
 
 SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
 AUGMENTATIONS = ("none", "photometric")
@@ -52,12 +59,9 @@ class BatchSpec:
             raise ValueError(f"augmentation must be one of {AUGMENTATIONS}, got {self.augmentation!r}")
         if not 0.0 <= self.vignetting < 1.0:
             raise ValueError(f"vignetting must be in [0, 1), got {self.vignetting}")
-        if not 0.0 <= self.clean_views <= 1.0:
-            raise ValueError(f"clean views must be a share in [0, 1], got {self.clean_views}")
-        if not 0.0 <= self.curved_surfaces <= 1.0:
-            raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
-        if not 0.0 <= self.fine_textures <= 1.0:
-            raise ValueError(f"fine textures must be a share in [0, 1], got {self.fine_textures}")
+        check_share("clean views", self.clean_views)
+        check_share("curved surfaces", self.curved_surfaces)
+        check_share("fine textures", self.fine_textures)
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")

@@ -18,6 +18,7 @@ from .generator import (
     VALIDATION_SEED,
     SyntheticConfig,
     SyntheticStereo,
+    check_share,
     generate,
     open_clean_validation_split,
     open_curved_validation_split,
@@ -30,7 +31,7 @@ from .photometric import Photometric, Rectification, apply_camera
 
 __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
            "Rectification",
-           "SyntheticConfig", "SyntheticStereo", "apply_camera", "generate",
+           "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
            "open_clean_validation_split", "open_curved_validation_split", "open_fine_validation_split",
            "open_validation_split",
            "random_scene", "validation_split"]

@@ -56,10 +56,14 @@ class SyntheticConfig:
             raise ValueError(f"synthetic images must be at least 8 x 8, got {self.height} x {self.width}")
         if self.max_disparity < 1:
             raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
-        if not 0.0 <= self.curved_surfaces <= 1.0:
-            raise ValueError(f"curved surfaces must be a share in [0, 1], got {self.curved_surfaces}")
-        if not 0.0 <= self.fine_textures <= 1.0:
-            raise ValueError(f"fine textures must be a share in [0, 1], got {self.fine_textures}")
+        check_share("curved surfaces", self.curved_surfaces)
+        check_share("fine textures", self.fine_textures)
+
+
+def check_share(what: str, share: float) -> None:
+    """ValueError unless ``share`` is in [0, 1] (NaN is not): the check of every share-valued lever."""
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"{what} must be a share in [0, 1], got {share}")
 
 
 # The validation split: fixed seeds, size and range (documented in docs/data.md; never change them).
