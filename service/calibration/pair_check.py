@@ -22,6 +22,8 @@ import dataclasses
 
 import numpy as np
 
+from service.filtering.box import box_sum, local_std
+
 TARGET_WIDTH = 200
 MAX_DY_PX = 8  # full-resolution pixels of vertical offset searched up and down
 SWAPPED_SHARE = 0.5
@@ -96,13 +98,13 @@ def check_pair(left: np.ndarray, right: np.ndarray, *, max_disparity: int | None
     limit = width // 4 if max_disparity is None else max_disparity
     reach = int(max(2, min(np.ceil(limit / scale), cols // 2 - 3)))
     census_left, census_right = _census(small_left), _census(small_right)
-    texture = _local_std(small_left) >= _MIN_TEXTURE
+    texture = local_std(small_left, 2) >= _MIN_TEXTURE
 
     best_cost = np.full((rows, cols), np.inf, np.float32)
     best_dx = np.zeros((rows, cols), np.int16)
     for dx in range(-reach, reach + 1):
         moved = np.roll(census_right, dx, axis=1)  # right(x - dx)
-        cost = _box(_popcount(census_left ^ moved).astype(np.float32), 2)
+        cost = box_sum(_popcount(census_left ^ moved).astype(np.float32), 2)
         better = cost < best_cost
         best_cost[better] = cost[better]
         best_dx[better] = dx
@@ -156,22 +158,6 @@ def _census(image: np.ndarray) -> np.ndarray:
 
 def _popcount(values: np.ndarray) -> np.ndarray:
     return np.bitwise_count(values)
-
-
-def _box(values: np.ndarray, radius: int) -> np.ndarray:
-    padded = np.pad(values, radius, mode="edge")
-    summed = padded.cumsum(axis=0).cumsum(axis=1)
-    summed = np.pad(summed, ((1, 0), (1, 0)))
-    size = 2 * radius + 1
-    height, width = values.shape
-    return (summed[size : size + height, size : size + width] - summed[:height, size : size + width]
-            - summed[size : size + height, :width] + summed[:height, :width])
-
-
-def _local_std(image: np.ndarray) -> np.ndarray:
-    mean = _box(image, 2) / 25.0
-    square = _box(image * image, 2) / 25.0
-    return np.sqrt(np.maximum(square - mean * mean, 0.0))
 
 
 def _parabola_argmin(values: np.ndarray) -> float:
