@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 
 # Subcommands are imported lazily by name so that `adsm predict` never pays for FastAPI's import.
-_SUBCOMMANDS = ("predict", "serve", "eval")
+_SUBCOMMANDS = ("predict", "serve", "eval", "stats")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -50,7 +50,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    report_path = _report_path(args.json)  # before the evaluation: a bad path would lose the whole run
+    path = report_path(args.json)  # before the evaluation: a bad path would lose the whole run
     dataset = open_dataset(args.data)
     # Imported here so that `adsm --help` does not pay for Numba and ONNX Runtime.
     from service.evaluation.evaluate import evaluate
@@ -71,12 +71,12 @@ def run(args: argparse.Namespace) -> int:
         print()
         return 0
     print(format_table(report))
-    if report_path is not None:
-        report_path.write_text(json.dumps(report, indent=2) + "\n")
+    if path is not None:
+        path.write_text(json.dumps(report, indent=2) + "\n")
     return 0
 
 
-def _report_path(text: str | None) -> Path | None:
+def report_path(text: str | None) -> Path | None:
     """The file of ``--json`` (None: no file, or ``-`` for stdout), refused when it cannot be written: the
     report is written once every pair is evaluated, which on a large dataset is hours later."""
     if text is None or text == "-":
