@@ -20,6 +20,7 @@ from typing import Any
 
 from service.cli.match_flags import add_match_flags, match_options
 from service.datasets import open_dataset
+from service.datasets.noise import NoisyViews
 from service.evaluation import BAD_THRESHOLDS
 from service.evaluation.breakdown import format_breakdown
 from service.evaluation.sparsification import format_sparsification
@@ -44,6 +45,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--confidence", action="store_true",
         help="also compute the confidence map and print its sparsification curve (bad-2 of the most "
         "confident 10..100 %% of the pixels)")
+    add("--noise", type=float, default=0.0, metavar="SIGMA",
+        help="add Gaussian noise of SIGMA grey levels (0-255) to both views of every pair, seeded per pair: "
+             "how the model degrades with noisier cameras (service/datasets/noise.py)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
     add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
     parser.set_defaults(func=run)
@@ -52,6 +56,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     path = report_path(args.json)  # before the evaluation: a bad path would lose the whole run
     dataset = open_dataset(args.data)
+    if args.noise:
+        dataset = NoisyViews(dataset, sigma=args.noise)
     # Imported here so that `adsm --help` does not pay for Numba and ONNX Runtime.
     from service.evaluation.evaluate import evaluate
     from service.matcher import Matcher
@@ -66,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
     report = evaluate(matcher, dataset, max_disparity=args.max_disparity, options=options, on_pair=progress)
     report["model_folder"] = str(args.model) if args.model is not None else None
+    report["noise_sigma"] = args.noise
     if args.json == "-":
         json.dump(report, sys.stdout, indent=2)
         print()
