@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from service.cli.match_flags import add_match_flags, match_options
+from service.cli.reports import emit_report, report_path
 from service.datasets import open_dataset
 from service.datasets.noise import NoisyViews
 from service.evaluation import BAD_THRESHOLDS
@@ -54,7 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = report_path(args.json)  # before the evaluation: a bad path would lose the whole run
+    report_path(args.json)  # before the evaluation: a bad path would lose the whole run
     dataset = open_dataset(args.data)
     if args.noise:
         dataset = NoisyViews(dataset, sigma=args.noise)
@@ -73,27 +73,8 @@ def run(args: argparse.Namespace) -> int:
     report = evaluate(matcher, dataset, max_disparity=args.max_disparity, options=options, on_pair=progress)
     report["model_folder"] = str(args.model) if args.model is not None else None
     report["noise_sigma"] = args.noise
-    if args.json == "-":
-        json.dump(report, sys.stdout, indent=2)
-        print()
-        return 0
-    print(format_table(report))
-    if path is not None:
-        path.write_text(json.dumps(report, indent=2) + "\n")
+    emit_report(report, args.json, format_table)
     return 0
-
-
-def report_path(text: str | None) -> Path | None:
-    """The file of ``--json`` (None: no file, or ``-`` for stdout), refused when it cannot be written: the
-    report is written once every pair is evaluated, which on a large dataset is hours later."""
-    if text is None or text == "-":
-        return None
-    path = Path(text)
-    if path.is_dir():
-        raise ValueError(f"--json {text!r} is a folder; name the report's file")
-    if not path.parent.is_dir():
-        raise ValueError(f"--json {text!r}: the folder {str(path.parent)!r} does not exist")
-    return path
 
 
 def format_table(report: dict[str, Any]) -> str:

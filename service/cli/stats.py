@@ -10,11 +10,10 @@ stderr; ``--json OUT`` writes every pair's figures (``-``: to stdout instead of 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
-from service.cli.eval import report_path
+from service.cli.reports import emit_report, report_path
 from service.datasets import open_dataset
 from service.evaluation.scene_statistics import EDGE_REACH, FLAT, WEAK, SceneStatistics
 
@@ -38,7 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = report_path(args.json)
+    report_path(args.json)  # before the work: a bad path would lose it
     datasets = [(spec, open_dataset(spec)) for spec in args.data]  # every SPEC checked before any work
     report: dict[str, Any] = {"schema": REPORT_SCHEMA, "datasets": []}
     for spec, dataset in datasets:
@@ -52,13 +51,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{figures['depth_edges']} %, texture median {figures['texture_median']}", file=sys.stderr)
         report["datasets"].append({"dataset": spec, "pairs": len(dataset), "all": statistics.summary(),
                                    "per_pair": pairs})
-    if args.json == "-":
-        json.dump(report, sys.stdout, indent=2)
-        print()
-        return 0
-    print(format_table(report))
-    if path is not None:
-        path.write_text(json.dumps(report, indent=2) + "\n")
+    emit_report(report, args.json, format_table)
     return 0
 
 
