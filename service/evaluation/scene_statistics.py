@@ -5,7 +5,8 @@ does (docs/training.md, issue 11). Three figures per dataset tell how a dataset 
 each over its ground-truth pixels (``adsm stats``):
 
 - ``depth_edges``: % within ``EDGE_REACH`` px of a disparity jump (:func:`breakdown.jump_distance`),
-  where a large window fattens the nearer surface;
+  where a large window fattens the nearer surface; a jump counts only between two known neighbours, so
+  on sparse ground truth (KITTI's LiDAR points) the figure is a lower bound;
 - ``texture``: the 3x3 standard deviation of the left view's grey level (0-255): median and % below
   ``FLAT`` and ``WEAK`` grey levels, where a small window has too little signal to match;
 - ``residual``: ``1 - ZNCC`` of 3x3 windows at the *true* match (the right view sampled at ``x - d``,
