@@ -21,19 +21,33 @@ import torch.nn.functional as F
 HALF_RANGE = 100                       # candidates truth - 100 .. truth + 100
 CANDIDATES = 2 * HALF_RANGE + 1
 SOFT_LABEL = (0.05, 0.2, 0.5, 0.2, 0.05)   # eq. 19 at offsets -2..2 from the truth
+# All the mass on the truth: moved to the fractional truth it is the two-tap label of linear interpolation,
+# with no reward for similarity one or two pixels off (the project's extension, not the paper's).
+SHARP_LABEL = (0.0, 0.0, 1.0, 0.0, 0.0)
 
 
-def soft_label(*, candidates: int = CANDIDATES, device: torch.device | None = None) -> torch.Tensor:
-    """Eq. (19): 0.5 on the truth (the centre), 0.2 one pixel off, 0.05 two pixels off, 0 elsewhere."""
+def soft_label(*, candidates: int = CANDIDATES, device: torch.device | None = None,
+               shape: tuple[float, ...] = SOFT_LABEL) -> torch.Tensor:
+    """Eq. (19): 0.5 on the truth (the centre), 0.2 one pixel off, 0.05 two pixels off, 0 elsewhere.
+
+    ``shape`` gives other weights at offsets -2..2 (:data:`SHARP_LABEL`); it must sum to 1.
+    """
+    if len(shape) != len(SOFT_LABEL) or abs(sum(shape) - 1.0) > 1e-6 or min(shape) < 0:
+        raise ValueError(f"a label shape is {len(SOFT_LABEL)} weights >= 0 that sum to 1, got {shape}")
     if candidates % 2 != 1 or candidates < len(SOFT_LABEL):
         raise ValueError(f"candidates must be odd and >= {len(SOFT_LABEL)}, got {candidates}")
     label = torch.zeros(candidates, device=device)
     centre = candidates // 2
-    label[centre - 2 : centre + 3] = torch.tensor(SOFT_LABEL, device=device)
+    label[centre - 2 : centre + 3] = torch.tensor(shape, device=device)
     return label
 
 
-LABELS = ("paper", "subpixel")
+# The trainer's --label: (shape at offsets -2..2, centred on the fractional truth?).
+LABELS: dict[str, tuple[tuple[float, ...], bool]] = {
+    "paper": (SOFT_LABEL, False),      # eq. (19) on the rounded truth
+    "subpixel": (SOFT_LABEL, True),    # eq. (19) moved to the fractional truth
+    "sharp": (SHARP_LABEL, True),      # the two-tap label of the fractional truth
+}
 
 
 def shifted_label(label: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
@@ -46,17 +60,19 @@ def shifted_label(label: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
 
 
 def matching_loss(logits: torch.Tensor, inside: torch.Tensor | None = None, *,
-                  reduction: str = "mean", shift: torch.Tensor | None = None) -> torch.Tensor:
+                  reduction: str = "mean", shift: torch.Tensor | None = None,
+                  shape: tuple[float, ...] = SOFT_LABEL) -> torch.Tensor:
     """Cross-entropy (eq. 18) of candidate ``logits`` [N, K] against the soft label centred at K // 2.
 
     ``inside`` [N, K] (bool) marks candidates inside the right image; the others are excluded.
     ``shift`` [N] moves each example's label by a fraction of a candidate (:func:`shifted_label`): the
     sub-pixel variant, centred on the fractional truth instead of the rounded one.
+    ``shape``: the label's weights at offsets -2..2 (:func:`soft_label`).
     ``reduction``: "mean" over the N examples, "sum", or "none" (a loss per example).
     """
     if logits.ndim != 2:
         raise ValueError(f"logits must be [N, candidates], got {tuple(logits.shape)}")
-    label = soft_label(candidates=logits.shape[1], device=logits.device).expand_as(logits)
+    label = soft_label(candidates=logits.shape[1], device=logits.device, shape=shape).expand_as(logits)
     if shift is not None:
         label = shifted_label(label, shift)
     if inside is not None:

@@ -68,9 +68,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--augmentation", choices=AUGMENTATIONS, default=DEFAULT_AUGMENTATION,
                         help="on top of the generator's camera effects (default chosen by measurement: "
                              "docs/training.md)")
-    parser.add_argument("--label", choices=LABELS, default="paper",
+    parser.add_argument("--label", choices=tuple(LABELS), default="paper",
                         help="paper: eq. (19) around the rounded truth; subpixel: the same label moved "
-                             "to the fractional truth (dense mode; docs/training.md)")
+                             "to the fractional truth; sharp: all the mass on the fractional truth, split "
+                             "between its two whole pixels (dense mode; docs/training.md)")
     parser.add_argument("--edge-weight", type=float, default=0.0, metavar="W",
                         help="dense mode: pixels within 3 px of a depth edge weigh 1 + W in the loss "
                              "(default 0: the paper's plain mean)")

@@ -65,6 +65,27 @@ def test_the_objective_is_the_weighted_mean_of_eq_18() -> None:
         Objective(model, mode="patch", edge_weight=1.0)
 
 
+def test_the_objective_uses_the_label_it_is_given() -> None:
+    from training.losses import SHARP_LABEL
+    torch.manual_seed(0)
+    model = build_tower_pair("9-4conv", channels=8, shared=True)
+    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
+    disparity = torch.full((1, 24, 48), 3.3)
+    with torch.no_grad():
+        sharp, _ = Objective(model, mode="dense", label="sharp", edge_weight=2.0)(left, right, disparity)
+        logits, inside, pixels, shift = dense_candidates(dense_features(model.left, left),
+                                                         dense_features(model.right, right), disparity,
+                                                         temperature=model.log_temperature.exp())
+        losses = matching_loss(logits, inside, shift=shift, shape=SHARP_LABEL, reduction="none")
+        weights = depth_edge_weights(disparity, pixels, weight=2.0)
+    assert float(sharp) == pytest.approx(float((weights * losses).sum() / weights.sum()), rel=1e-5)
+    for label in ("subpixel", "sharp"):
+        with pytest.raises(ValueError, match="fractional truth"):
+            Objective(model, mode="patch", label=label)
+    with pytest.raises(ValueError, match="label must be one of"):
+        Objective(model, mode="dense", label="onehot")
+
+
 def test_the_trainer_takes_the_weight_and_refuses_a_negative_one(tmp_path, capsys) -> None:
     assert train_main(["--config", "9-4conv", "--channels", "4", "--shared", "--iterations", "1",
                        "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--val-every", "1",

@@ -163,6 +163,29 @@ def test_subpixel_label_keeps_its_mass_and_moves_its_centroid_by_the_shift():
     torch.testing.assert_close(moved[0], label[0])
 
 
+def test_sharp_label_is_the_two_tap_interpolation_of_the_fractional_truth():
+    from training.losses import LABELS, SHARP_LABEL
+    logits = torch.randn(3, 11, generator=torch.Generator().manual_seed(3))
+    shift = torch.tensor([0.0, 0.3, -0.25])
+    expected_label = torch.zeros(3, 11)
+    expected_label[0, 5] = 1.0
+    expected_label[1, 5], expected_label[1, 6] = 0.7, 0.3
+    expected_label[2, 5], expected_label[2, 4] = 0.75, 0.25
+    expected = -(expected_label * torch.log_softmax(logits, dim=1)).sum(dim=1)
+    torch.testing.assert_close(matching_loss(logits, shift=shift, shape=SHARP_LABEL, reduction="none"),
+                               expected)
+    # Unlike eq. (19), similarity one or two pixels off earns nothing: a peak on the truth alone wins.
+    peak = torch.full((1, 11), -30.0)
+    peak[0, 5] = 0.0
+    broad = torch.log(soft_label(candidates=11).clamp_min(1e-13))[None]
+    sharp = SHARP_LABEL
+    assert float(matching_loss(peak, shape=sharp)) < float(matching_loss(broad, shape=sharp))
+    assert float(matching_loss(peak)) > float(matching_loss(broad))
+    assert LABELS["sharp"] == (SHARP_LABEL, True) and LABELS["paper"][1] is False
+    with pytest.raises(ValueError, match="sum to 1"):
+        soft_label(candidates=11, shape=(0.0, 0.0, 0.5, 0.0, 0.0))
+
+
 def test_dense_shift_points_at_the_fractional_truth():
     features = F.normalize(torch.randn(1, 4, 3, 16), dim=1)
     truth = torch.full((1, 3, 16), 3.25)

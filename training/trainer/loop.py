@@ -55,7 +55,7 @@ class TrainConfig:
     crop: tuple[int, int] = (128, 256)
     max_disparity: int = 96
     augmentation: str = DEFAULT_AUGMENTATION
-    label: str = "paper"                # eq. (19) on the rounded truth; "subpixel": centred on the exact one
+    label: str = "paper"                # a key of training.losses.LABELS: eq. (19) on the rounded truth
     edge_weight: float = 0.0            # extra loss weight within 3 px of a depth edge (0: the paper's mean)
     rectification_error: bool = False   # synthetic right views slightly misaligned (batches.BatchSpec)
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this

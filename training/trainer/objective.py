@@ -20,9 +20,9 @@ class Objective(nn.Module):
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
         if label not in LABELS:
-            raise ValueError(f"label must be one of {LABELS}, got {label!r}")
-        if label == "subpixel" and mode == "patch":
-            raise ValueError("the sub-pixel label needs the fractional truth of dense crops (--mode dense)")
+            raise ValueError(f"label must be one of {tuple(LABELS)}, got {label!r}")
+        if LABELS[label][1] and mode == "patch":
+            raise ValueError(f"the {label} label needs the fractional truth of dense crops (--mode dense)")
         if edge_weight and mode == "patch":
             raise ValueError("the depth-edge weight needs the dense ground truth of crops (--mode dense)")
         check_edge_weight(edge_weight)
@@ -46,10 +46,11 @@ class Objective(nn.Module):
             # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
             # so DDP's gradient all-reduce sees the same parameters on every process.
             return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
-        shift = shift if self.label == "subpixel" else None
+        shape, fractional = LABELS[self.label]
+        shift = shift if fractional else None
         if not self.edge_weight:
-            return matching_loss(logits, inside, shift=shift), int(pixels.shape[0])
+            return matching_loss(logits, inside, shift=shift, shape=shape), int(pixels.shape[0])
         # Pixels near depth edges count (1 + edge_weight) times: the weighted mean of eq. (18).
         weights = depth_edge_weights(target, pixels, weight=self.edge_weight)
-        losses = matching_loss(logits, inside, shift=shift, reduction="none")
+        losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
         return (weights * losses).sum() / weights.sum(), int(pixels.shape[0])
