@@ -16,6 +16,7 @@ import numpy as np
 
 from service.features.scale import MAX_TOWER_SCALE
 from service.optimization import MAX_PENALTY
+from service.validation import LR_CHECK_THRESHOLD
 
 __all__ = ["MatchOptions", "StereoResult", "colour_images"]
 
@@ -39,6 +40,9 @@ class MatchOptions:
     adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
     subpixel: bool = True
     lr_check: bool = True
+    # Largest |DL - DR| (pixels) of a pixel the left-right check keeps: 0.5 keeps only pixels whose right
+    # winner is their own rounded disparity, stricter than MC-CNN's 1 (service/validation/inner_check.py).
+    lr_check_threshold: float = LR_CHECK_THRESHOLD
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
     # Rejected pixels filled leaning to the background (occlusions: the farthest of the first valid pixels
     # to the left; mismatches: the lower tercile of the rays), not by MC-CNN's rules, which copy the
@@ -73,6 +77,11 @@ class MatchOptions:
                 or not math.isfinite(value) or not 0 <= value <= MAX_PENALTY
             ):
                 raise ValueError(f"{name} must be a number in [0, {MAX_PENALTY:g}], got {value!r}")
+        if (isinstance(self.lr_check_threshold, bool)
+                or not isinstance(self.lr_check_threshold, int | float | np.number)
+                or not math.isfinite(self.lr_check_threshold) or self.lr_check_threshold < 0):
+            raise ValueError(f"lr_check_threshold must be a finite number of pixels >= 0, "
+                             f"got {self.lr_check_threshold!r}")
         if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
             raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
         for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",

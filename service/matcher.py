@@ -262,7 +262,8 @@ class Matcher:
             if options.lr_check:
                 right_winners += np.int32(offset)
         if options.lr_check:
-            validity = inner_check(disparity, right_winners, disparities, min_disparity=offset)
+            validity = inner_check(disparity, right_winners, disparities, min_disparity=offset,
+                                   threshold=options.lr_check_threshold)
             lap("lr_check")
             if options.fill:
                 run, fraction = ((BACKGROUND_RUN, MISMATCH_FRACTION) if options.background_fill

@@ -31,8 +31,9 @@ MODEL_STEPS = {
 
 
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
-    """``--min-disparity``, ``--tower-scale``, ``--p1``, ``--p2``, a ``--no-<step>`` flag for each of
-    ``steps`` (keys of STEP_SWITCHES) and a ``--<step>`` / ``--no-<step>`` pair for each of MODEL_STEPS."""
+    """``--min-disparity``, ``--tower-scale``, ``--lr-check-threshold``, ``--p1``, ``--p2``, a
+    ``--no-<step>`` flag for each of ``steps`` (keys of STEP_SWITCHES) and a ``--<step>`` /
+    ``--no-<step>`` pair for each of MODEL_STEPS."""
     add("--min-disparity", type=int, default=0, metavar="M",
         help="smallest disparity searched: the range is [M, M + D) with D from --max-disparity "
         "(as OpenCV's minDisparity; default 0, negative allowed)")
@@ -40,6 +41,10 @@ def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STE
         help="run the feature towers on the pair upsampled by the integer S: sharper depth edges "
         "on clean, densely textured images (Middlebury-like), worse on noisy or compressed ones; "
         "~S^2 times the towers' time (default 1; docs/service.md, \"Tower scale\")")
+    add("--lr-check-threshold", type=float, metavar="PX",
+        help="largest |DL - DR| in pixels of a pixel the left-right check keeps (default: the runtime's, "
+        "service.validation.LR_CHECK_THRESHOLD: the right view's winner must be the pixel's own rounded "
+        "disparity; MC-CNN's 1 keeps more pixels at depth edges)")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
     for step in steps:
@@ -56,4 +61,6 @@ def match_options(args: argparse.Namespace) -> Any:
     switches: dict[str, Any] = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
     switches.update({step: getattr(args, step, None) for step in MODEL_STEPS})  # None: the model's
     return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity,
-                        tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches)
+                        tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches,
+                        **({} if args.lr_check_threshold is None
+                           else {"lr_check_threshold": args.lr_check_threshold}))

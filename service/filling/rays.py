@@ -11,7 +11,8 @@ depend on the order of the pixels.
   over the first background pixels, and MC-CNN's rule (the first valid pixel, ``background_run=1``) then
   copies the foreground into the hole (a third of the filled occlusions were bad-2 by being too large).
   Longer runs help the synthetic split more and more while Cones' filled occlusions get worse beyond 2:
-  2 is the longest run that Cones does not contradict (docs/training.md, "What the check rejects").
+  2 is the longest run that Cones does not contradict (docs/training.md, "What the check rejects"; swept
+  again with the 0.5 px check, "A stricter left-right check": the same reading).
   Where the left ray leaves the image (the band x < d along the left border, which the right camera
   never sees) the first valid pixel on the ray to the right is used instead.
   Measured on Cones with the NCC baseline (P1=30, P2=160, bad-2 over all ground-truth pixels): 13.19 %
@@ -20,7 +21,8 @@ depend on the order of the pixels.
 - Mismatch: the value at ``MISMATCH_FRACTION`` of the sorted first valid pixels of the rays (MC-CNN's
   median, the upper one for an even count, is ``mismatch_fraction=(1, 2)``). Mismatches sit at depth
   edges too, where the foreground is fattened, so the lower tercile leans the same way as the occlusion
-  rule. Measured on adsm-fast-int8 with the background run 2 (`python -m bench background_fill`):
+  rule. Measured on adsm-fast-int8 with the background run 2 and the 1 px check then (`python -m bench
+  background_fill`):
   synthetic:20 bad-2 18.42 / 18.29 / 18.30 / 18.33 % at the fractions 1/2, 1/3, 1/4, 1/5 (the rule's
   choice, 1/3), Cones 8.32 / 8.03 / 7.96 / 7.91 % (it confirms).
 - No ray finds a valid pixel: NaN and ``Validity.NO_DATA``.

@@ -37,6 +37,10 @@ def test_rejects_bad_images(left, right, message: str) -> None:
         ({"p2": 4097.0}, "p2"),
         ({"fill": "yes"}, "fill"),
         ({"shiftable_windows": "yes"}, "shiftable_windows"),
+        ({"lr_check_threshold": -0.5}, "lr_check_threshold"),
+        ({"lr_check_threshold": float("nan")}, "lr_check_threshold"),
+        ({"lr_check_threshold": True}, "lr_check_threshold"),
+        ({"lr_check_threshold": "1"}, "lr_check_threshold"),
     ],
 )
 def test_rejects_bad_options(options: dict, message: str) -> None:

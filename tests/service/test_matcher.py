@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 
 import numpy as np
@@ -75,6 +76,17 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     assert "weighted_median" not in banded.timings
     np.testing.assert_array_equal(default.disparity, weighted_median(banded.disparity, left))
     np.testing.assert_array_equal(default.validity, banded.validity)
+
+
+def test_a_stricter_left_right_check_keeps_a_subset_of_the_pixels(matcher: Matcher) -> None:
+    # A slanted plane has fractional disparities: rounded, some land one step from the right view's winner.
+    left, right, _, _ = slanted_plane_pair(height=40, width=64)
+    options = MatchOptions(max_disparity=24, fill=False, border=False, weighted_median=False)
+    strict = matcher(left, right, options)  # the default threshold, 0.5 px
+    loose = matcher(left, right, dataclasses.replace(options, lr_check_threshold=1.0))  # MC-CNN's
+    kept, kept_loosely = strict.validity == Validity.VALID, loose.validity == Validity.VALID
+    assert not (kept & ~kept_loosely).any() and kept.sum() < kept_loosely.sum()
+    np.testing.assert_array_equal(strict.disparity[kept], loose.disparity[kept])
 
 
 def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:

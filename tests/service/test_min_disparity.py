@@ -11,7 +11,7 @@ from service.disparity import left_right_winners
 from service.filling import fill_border_band, fill_invalid
 from service.limits import DisparityRangeError, SearchRange, search_range
 from service.matcher import Matcher, MatchOptions, Validity
-from service.validation import inner_check
+from service.validation import LR_CHECK_THRESHOLD, inner_check
 from tests.helpers import slanted_plane_pair, unit_features
 
 
@@ -66,13 +66,14 @@ def test_right_winners_with_an_offset_match_numpy(rng, first: int) -> None:
     np.testing.assert_array_equal(right, naive_right_winners(volume, first))
 
 
-def naive_inner_check(left: np.ndarray, right: np.ndarray, first: int, count: int) -> np.ndarray:
+def naive_inner_check(left: np.ndarray, right: np.ndarray, first: int, count: int,
+                      threshold: float = LR_CHECK_THRESHOLD) -> np.ndarray:
     height, width = left.shape
     validity = np.empty(left.shape, np.uint8)
     for y in range(height):
         for x in range(width):
             matched = x - int(np.floor(left[y, x] + 0.5))
-            if 0 <= matched < width and abs(left[y, x] - right[y, matched]) <= 1:
+            if 0 <= matched < width and abs(left[y, x] - right[y, matched]) <= threshold:
                 validity[y, x] = Validity.VALID
                 continue
             consistent = any(0 <= x - d < width and abs(d - right[y, x - d]) <= 1
@@ -81,13 +82,15 @@ def naive_inner_check(left: np.ndarray, right: np.ndarray, first: int, count: in
     return validity
 
 
+@pytest.mark.parametrize("threshold", [LR_CHECK_THRESHOLD, 0.0, 1.0, 2.5])
 @pytest.mark.parametrize("first", [0, 4, -5])
-def test_inner_check_with_an_offset_matches_numpy(rng, first: int) -> None:
+def test_inner_check_with_an_offset_matches_numpy(rng, first: int, threshold: float) -> None:
     count = 6
     left = (first + rng.uniform(0, count - 1, (4, 15))).astype(np.float32)
     right = (first + rng.integers(0, count, (4, 15))).astype(np.int32)
-    expected = naive_inner_check(left, right, first, count)
-    np.testing.assert_array_equal(inner_check(left, right, count, min_disparity=first), expected)
+    expected = naive_inner_check(left, right, first, count, threshold)
+    np.testing.assert_array_equal(
+        inner_check(left, right, count, min_disparity=first, threshold=threshold), expected)
     assert {Validity.VALID, Validity.OCCLUDED, Validity.MISMATCH} & set(np.unique(expected))
 
 

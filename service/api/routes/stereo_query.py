@@ -15,6 +15,7 @@ from service.features.scale import MAX_TOWER_SCALE
 from service.filling import BACKGROUND_RUN
 from service.match_options import MatchOptions
 from service.optimization import MAX_PENALTY
+from service.validation import LR_CHECK_THRESHOLD
 
 
 def _query_names(dependant: Dependant) -> set[str]:
@@ -51,6 +52,11 @@ def stereo_options(
                    "|min_disparity| < width and min_disparity + max_disparity <= width.")
     ] = 0,
     lr_check: Annotated[bool, Query(description="Inner left-right check (occlusion/mismatch).")] = True,
+    lr_check_threshold: Annotated[float, Query(
+        ge=0, le=MAX_OFFSET_PX, allow_inf_nan=False,
+        description="Largest |DL - DR| in pixels of a pixel the left-right check keeps (the default, "
+        f"{LR_CHECK_THRESHOLD:g}, keeps a pixel when the right view's winner is its own rounded disparity; "
+        "MC-CNN's 1 keeps more pixels at depth edges).")] = LR_CHECK_THRESHOLD,
     fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
                                        "default: lr_check).")] = None,
     background_fill: Annotated[bool, Query(description="Fill rejected pixels leaning to the background: an "
@@ -86,7 +92,7 @@ def stereo_options(
             fill=lr_check if fill is None else fill, background_fill=background_fill,
             subpixel=subpixel, shiftable_windows=shiftable_windows, tower_scale=tower_scale, border=border,
             weighted_median=weighted_median, adaptive_p2=adaptive_p2,
-            p1=p1, p2=p2,
+            lr_check_threshold=lr_check_threshold, p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500
         raise HTTPException(400, str(error)) from None
