@@ -53,7 +53,7 @@ def _signatures(*, confidence: bool) -> list[tuple[Any, tuple[Any, ...]]]:
         (_left_right_winners, (volume, 0, winners, winners)),
         (_winners, (volume, winners)),
         (_refine_rows, (volume, winners, grey)),
-        (_check_rows, (grey, winners, 0, 0, codes)),
+        (_check_rows, (grey, winners, 0, 0, real, codes)),
         (_fill_rows, (grey, codes, _DIRECTIONS, 0, 0, 0, grey, codes)),
         (_band_rows, (grey, codes)),
         (_filter_rows, (grey, np.zeros((1, 1, 3), np.uint8), 0, np.zeros(1, np.float32), grey, real, grey)),
