@@ -55,7 +55,7 @@ def _signatures(*, confidence: bool) -> list[tuple[Any, tuple[Any, ...]]]:
         (_refine_rows, (volume, winners, grey)),
         (_check_rows, (grey, winners, 0, 0, real, codes)),
         (_fill_rows, (grey, codes, _DIRECTIONS, 0, 0, 0, grey, codes)),
-        (_band_rows, (grey, codes)),
+        (_band_rows, (grey, codes, 0, real)),
         (_filter_rows, (grey, np.zeros((1, 1, 3), np.uint8), 0, np.zeros(1, np.float32), grey, real, grey)),
     ]
     if confidence:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from service.features.scale import MAX_TOWER_SCALE
+from service.filling.border import SURFACE_RUN
 from service.optimization import MAX_PENALTY
 from service.validation import LR_CHECK_THRESHOLD
 
@@ -49,6 +50,9 @@ class MatchOptions:
     # fattened foreground into the holes: service/filling/rays.py.
     background_fill: bool = True
     border: bool = True  # give the left border band (match left of the right image) its surface's disparity
+    # The band ends at a run of this many accepted pixels at one disparity matched inside the right image (a
+    # farther surface the right camera saw); 0 carries every band to the border (service/filling/border.py).
+    border_surface_run: int = SURFACE_RUN
     weighted_median: bool = True  # image-guided weighted median at depth edges (service.filtering)
 
     # --- Issue 12 (range offset, confidence): kept apart from the pipeline switches above. ---
@@ -82,6 +86,10 @@ class MatchOptions:
                 or not math.isfinite(self.lr_check_threshold) or self.lr_check_threshold < 0):
             raise ValueError(f"lr_check_threshold must be a finite number of pixels >= 0, "
                              f"got {self.lr_check_threshold!r}")
+        if (isinstance(self.border_surface_run, bool)
+                or not isinstance(self.border_surface_run, int | np.integer) or self.border_surface_run < 0):
+            raise ValueError(f"border_surface_run must be an integer number of pixels >= 0, "
+                             f"got {self.border_surface_run!r}")
         if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
             raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
         for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",

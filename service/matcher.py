@@ -276,7 +276,8 @@ class Matcher:
         else:
             validity = np.zeros(disparity.shape, np.uint8)
         if options.border:
-            disparity, validity = fill_border_band(disparity, validity)
+            disparity, validity = fill_border_band(disparity, validity,
+                                                   surface_run=options.border_surface_run)
             lap("border")
         if options.weighted_median:
             disparity = weighted_median(disparity, left)

@@ -31,7 +31,8 @@ MODEL_STEPS = {
 
 
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
-    """``--min-disparity``, ``--tower-scale``, ``--lr-check-threshold``, ``--p1``, ``--p2``, a
+    """``--min-disparity``, ``--tower-scale``, ``--lr-check-threshold``, ``--border-surface-run``,
+    ``--p1``, ``--p2``, a
     ``--no-<step>`` flag for each of ``steps`` (keys of STEP_SWITCHES) and a ``--<step>`` /
     ``--no-<step>`` pair for each of MODEL_STEPS."""
     add("--min-disparity", type=int, default=0, metavar="M",
@@ -45,6 +46,10 @@ def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STE
         help="largest |DL - DR| in pixels of a pixel the left-right check keeps (default: the runtime's, "
         "service.validation.LR_CHECK_THRESHOLD: the right view's winner must be the pixel's own rounded "
         "disparity; MC-CNN's 1 keeps more pixels at depth edges)")
+    add("--border-surface-run", type=int, metavar="N",
+        help="the left border band ends at a run of N accepted pixels at one disparity that match inside "
+        "the right image (default: the runtime's, service.filling.border.SURFACE_RUN; 0 carries every "
+        "band to the border)")
     add("--p1", type=float, help="SGM penalty for a 1 px disparity change (cost units)")
     add("--p2", type=float, help="SGM penalty for a larger disparity jump (cost units)")
     for step in steps:
@@ -63,4 +68,6 @@ def match_options(args: argparse.Namespace) -> Any:
     return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity,
                         tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches,
                         **({} if args.lr_check_threshold is None
-                           else {"lr_check_threshold": args.lr_check_threshold}))
+                           else {"lr_check_threshold": args.lr_check_threshold}),
+                        **({} if args.border_surface_run is None
+                           else {"border_surface_run": args.border_surface_run}))

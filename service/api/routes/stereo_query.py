@@ -12,7 +12,7 @@ from fastapi.dependencies.models import Dependant
 
 from service.api.routes.camera_query import MAX_OFFSET_PX
 from service.features.scale import MAX_TOWER_SCALE
-from service.filling import BACKGROUND_RUN
+from service.filling import BACKGROUND_RUN, SURFACE_RUN
 from service.match_options import MatchOptions
 from service.optimization import MAX_PENALTY
 from service.validation import LR_CHECK_THRESHOLD
@@ -76,6 +76,11 @@ def stereo_options(
                                        "edges follow image edges.")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
                                   "the right image) the disparity of the surface they continue.")] = True,
+    border_surface_run: Annotated[int, Query(
+        ge=0, le=int(MAX_OFFSET_PX),
+        description="The border band ends at a run of this many accepted pixels at one disparity that "
+        "match inside the right image (a farther surface the right camera saw); 0 carries every band to "
+        "the border.")] = SURFACE_RUN,
     weighted_median: Annotated[bool, Query(description="Image-guided weighted median at depth edges, so "
                                            "depth edges follow image edges.")] = True,
     p1: Annotated[float | None, Query(ge=0, le=MAX_PENALTY, allow_inf_nan=False,
@@ -92,7 +97,7 @@ def stereo_options(
             fill=lr_check if fill is None else fill, background_fill=background_fill,
             subpixel=subpixel, shiftable_windows=shiftable_windows, tower_scale=tower_scale, border=border,
             weighted_median=weighted_median, adaptive_p2=adaptive_p2,
-            lr_check_threshold=lr_check_threshold, p1=p1, p2=p2,
+            lr_check_threshold=lr_check_threshold, border_surface_run=border_surface_run, p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500
         raise HTTPException(400, str(error)) from None

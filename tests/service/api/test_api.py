@@ -243,6 +243,8 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     assert not np.array_equal(await disparity(shiftable_windows="true"), banded)
     # MC-CNN's 1 px check keeps pixels the default 0.5 px rejects (then filled): another map.
     assert not np.array_equal(await disparity(lr_check_threshold=1), banded)
+    # A surface run of 1 lets a single chance match inside the strip end the band there: another map.
+    assert not np.array_equal(await disparity(border_surface_run=1), banded)
 
 
 async def test_tower_scale_matches_in_image_pixels_within_the_work_limit(client: httpx.AsyncClient) -> None:
