@@ -14,9 +14,10 @@ walked from left to right with the same rule mirrored.
 Measured with the 13-1deconv3-4conv 32-channel towers (P1/P2 20/160): Cones bad-2 10.50 -> 9.20 %,
 EPE 1.61 -> 0.93 px; synthetic:8 bad-2 19.31 -> 16.70 % (docs/training.md, "Post-processing").
 
-The band ends at a surface the right camera saw. A near object close to the border (disparity 50 at
-x = 60, say) would otherwise carry its band over a farther surface left of it (disparity 20 at x = 20..59),
-whose pixels match inside the right image. So, inside the band, a pixel that passed the check, matches
+The band ends at a surface the right camera saw. A near object close to the border (disparity 50 from
+x = 60, say) would otherwise carry its band (x < 50) over a farther surface left of it (disparity 20),
+whose pixels at x = 20..29, left of the occlusion beside the object, match inside the right image. So,
+inside the band, a pixel that passed the check, matches
 inside the right image (``d <= x``) and starts a run of at least ``surface_run`` accepted pixels towards
 the border whose disparities stay within :data:`SURFACE_TOLERANCE` of its own becomes the new reference.
 A wrong match inside the true band is rarely that consistent: there the winner is any small disparity a
