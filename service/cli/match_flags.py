@@ -30,11 +30,14 @@ MODEL_STEPS = {
 }
 
 
+# MatchOptions fields whose flag, when left out, keeps the runtime's default (not the model's).
+RUNTIME_DEFAULTS = ("lr_check_threshold", "border_surface_run")
+
+
 def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STEP_SWITCHES)) -> None:
     """``--min-disparity``, ``--tower-scale``, ``--lr-check-threshold``, ``--border-surface-run``,
-    ``--p1``, ``--p2``, a
-    ``--no-<step>`` flag for each of ``steps`` (keys of STEP_SWITCHES) and a ``--<step>`` /
-    ``--no-<step>`` pair for each of MODEL_STEPS."""
+    ``--p1``, ``--p2``, a ``--no-<step>`` flag for each of ``steps`` (keys of STEP_SWITCHES) and a
+    ``--<step>`` / ``--no-<step>`` pair for each of MODEL_STEPS."""
     add("--min-disparity", type=int, default=0, metavar="M",
         help="smallest disparity searched: the range is [M, M + D) with D from --max-disparity "
         "(as OpenCV's minDisparity; default 0, negative allowed)")
@@ -65,9 +68,7 @@ def match_options(args: argparse.Namespace) -> Any:
 
     switches: dict[str, Any] = {step: not getattr(args, f"no_{step}", False) for step in STEP_SWITCHES}
     switches.update({step: getattr(args, step, None) for step in MODEL_STEPS})  # None: the model's
+    # A flag left out keeps MatchOptions' own default, the runtime's constant.
+    switches.update({name: value for name in RUNTIME_DEFAULTS if (value := getattr(args, name)) is not None})
     return MatchOptions(max_disparity=args.max_disparity, min_disparity=args.min_disparity,
-                        tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches,
-                        **({} if args.lr_check_threshold is None
-                           else {"lr_check_threshold": args.lr_check_threshold}),
-                        **({} if args.border_surface_run is None
-                           else {"border_surface_run": args.border_surface_run}))
+                        tower_scale=args.tower_scale, p1=args.p1, p2=args.p2, **switches)
