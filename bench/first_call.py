@@ -28,7 +28,8 @@ import numpy as np
 
 from bench import positive_int
 
-STAGES = ("prepare", "towers", "cost_volume", "sgm", "disparity", "subpixel", "lr_check", "fill", "border")
+STAGES = ("prepare", "towers", "cost_volume", "sgm", "disparity", "subpixel", "right_sgm", "lr_check", "fill",
+          "border")
 # A stand-in package that makes `import scipy` fail, for --serve-extra: the serve extra installs no SciPy,
 # and numba imports scipy.linalg (when present) at its first kernel load, looking for a BLAS.
 _NO_SCIPY = 'raise ImportError("SciPy is hidden: python -m bench first_call --serve-extra")\n'

@@ -45,7 +45,7 @@ NORM_EPS = 1e-6
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
 DEFAULT_WINDOW = 7
 MAX_WINDOW = 63  # w^2 = 3969 feature channels per pixel; a larger window only exhausts memory
-SGM_P1 = 45.0
+SGM_P1 = 65.0
 SGM_P2 = 540.0
 
 

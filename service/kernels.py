@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from service.aggregation.shiftable_windows import _shift_rows
+from service.cost.right_view import _right_view_rows
 from service.cost.volume import _cost_rows
 from service.disparity.wta import _left_right_winners, _winners
 from service.filling.border import _band_rows
@@ -53,6 +54,7 @@ def _signatures(*, confidence: bool) -> list[tuple[Any, tuple[Any, ...]]]:
         (_left_right_winners, (volume, 0, winners, winners)),
         (_winners, (volume, winners)),
         (_refine_rows, (volume, winners, grey)),
+        (_right_view_rows, (volume, 0, real, volume)),
         (_check_rows, (grey, winners, 0, 0, real, codes)),
         (_fill_rows, (grey, codes, _DIRECTIONS, 0, 0, 0, grey, codes)),
         (_band_rows, (grey, codes, 0, real)),

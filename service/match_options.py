@@ -41,9 +41,14 @@ class MatchOptions:
     adaptive_p2: bool = True  # lower SGM's jump penalty across image edges (service.optimization.aggregate)
     subpixel: bool = True
     lr_check: bool = True
-    # Largest |DL - DR| (pixels) of a pixel the left-right check keeps: 0.5 keeps only pixels whose right
-    # winner is their own rounded disparity, stricter than MC-CNN's 1 (service/validation/inner_check.py).
+    # Largest |DL - DR| (pixels) of a pixel the left-right check keeps: 0.75 keeps a right winner one step
+    # off only where the sub-pixel disparity lies within 0.25 px of the half-way point, stricter than
+    # MC-CNN's 1 (service/validation/inner_check.py).
     lr_check_threshold: float = LR_CHECK_THRESHOLD
+    # The check's right winners from the right view's own SGM pass over its re-indexed costs (MC-CNN's
+    # D^R), not read off the left view's aggregated volume, which carries the left frame's fattening
+    # (service/cost/right_view.py); one more SGM pass. Needs sgm and lr_check.
+    right_sgm: bool = True
     fill: bool = True  # fill the pixels the left-right check rejected (needs lr_check)
     # Rejected pixels filled leaning to the background (occlusions: the farthest of the first valid pixels
     # to the left; mismatches: the lower tercile of the rays), not by MC-CNN's rules, which copy the
@@ -92,8 +97,8 @@ class MatchOptions:
                              f"got {self.border_surface_run!r}")
         if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
             raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
-        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "fill", "background_fill", "border",
-                     "weighted_median", "confidence"):
+        for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "right_sgm", "fill", "background_fill",
+                     "border", "weighted_median", "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 

@@ -1,7 +1,7 @@
 """Matcher: a rectified stereo pair -> disparity, validity and stage timings; the runtime's one entry point.
 
     towers (at the tower scale) -> cost_volume -> shiftable_windows -> sgm -> disparity (WTA) -> subpixel
-    -> lr_check (inner check) -> fill -> border -> weighted_median
+    -> right_sgm (the right view's winners) -> lr_check (inner check) -> fill -> border -> weighted_median
 
 Defaults come from the model's manifest (``cost.scale``, ``sgm.p1``, ``sgm.p2``,
 ``disparity.default_max``); every post-processing step can be switched off per call with
@@ -27,7 +27,7 @@ import numpy as np
 
 from service import jit
 from service.aggregation import shiftable_windows
-from service.cost import VolumeWorkspace, cost_volume
+from service.cost import VolumeWorkspace, cost_volume, right_view_volume
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
 from service.features.tiles import tiled_features
@@ -133,10 +133,10 @@ class Matcher:
             self._warm_kernels(left, right)
 
     def _warm_kernels(self, left: np.ndarray, right: np.ndarray) -> None:
-        # All on: cost volume, shiftable windows, SGM, left-right winners, sub-pixel, confidence, inner
-        # check, filling; lr_check off: plain winner-takes-all.
+        # All on: cost volume, shiftable windows, SGM, winner-takes-all, sub-pixel, confidence, the right
+        # view's volume and SGM, inner check, filling; right_sgm off: both views' winners in one pass.
         every_kernel = MatchOptions(max_disparity=4, confidence=True, shiftable_windows=True)
-        for options in (every_kernel, MatchOptions(max_disparity=4, lr_check=False, fill=False)):
+        for options in (every_kernel, MatchOptions(max_disparity=4, right_sgm=False)):
             self(left, right, options)
 
     def prepare(self, height: int, width: int, options: MatchOptions | None = None) -> None:
@@ -237,11 +237,14 @@ class Matcher:
         if self.uses_shiftable_windows(options):
             shiftable_windows(volume)
             lap("shiftable_windows")
+        cost = volume
         if options.sgm:
             guide = left.mean(axis=2, dtype=np.float32) if options.adaptive_p2 else None
             volume = aggregate(volume, p1=p1, p2=p2, out=aggregated, guide=guide)
         lap("sgm")
-        if options.lr_check:
+        # The right view aggregated in its own frame needs its own pass, after the left volume is read.
+        right_sgm = options.lr_check and options.sgm and options.right_sgm
+        if options.lr_check and not right_sgm:
             winners, right_winners = left_right_winners(volume, min_disparity=offset)
         else:
             winners = winner_takes_all(volume)
@@ -256,7 +259,14 @@ class Matcher:
             # The lowest cost the volume can hold: every path's L is at least the raw cost, >= -scale.
             confidence = cost_confidence(volume, winners, lowest=-(PATHS if options.sgm else 1) * scale)
             lap("confidence")
-        del volume, raw, aggregated
+        if right_sgm:
+            # In place: the left view's raw costs become the right view's, aggregated into the buffer that
+            # held the left view's (both read for the last time above).
+            cost = right_view_volume(cost, scale=scale, min_disparity=offset, out=cost)
+            guide = right.mean(axis=2, dtype=np.float32) if options.adaptive_p2 else None
+            right_winners = winner_takes_all(aggregate(cost, p1=p1, p2=p2, out=volume, guide=guide))
+            lap("right_sgm")
+        del volume, raw, aggregated, cost
         if offset:  # cell indices -> disparities
             disparity += np.float32(offset)
             if options.lr_check:

@@ -13,6 +13,8 @@ from typing import Any
 # MatchOptions field -> help of its --no-<field> flag.
 STEP_SWITCHES = {
     "lr_check": "skip the inner left-right check",
+    "right_sgm": "the check's right winners read off the left view's aggregated costs, not from the "
+                 "right view's own SGM pass (one SGM pass fewer)",
     "fill": "leave invalid pixels unfilled (NaN)",
     "background_fill": "fill rejected pixels by MC-CNN's rules (occlusion: the first valid pixel to the "
                        "left; mismatch: the median of 16 rays) instead of leaning to the background",
@@ -48,7 +50,8 @@ def add_match_flags(add: Callable[..., Any], *, steps: Sequence[str] = tuple(STE
     add("--lr-check-threshold", type=float, metavar="PX",
         help="largest |DL - DR| in pixels of a pixel the left-right check keeps (default: the runtime's, "
         "service.validation.LR_CHECK_THRESHOLD: the right view's winner must be the pixel's own rounded "
-        "disparity; MC-CNN's 1 keeps more pixels at depth edges)")
+        "disparity, or the step beside it near the half-way point; MC-CNN's 1 keeps more pixels at depth "
+        "edges)")
     add("--border-surface-run", type=int, metavar="N",
         help="the left border band ends at a run of N accepted pixels at one disparity that match inside "
         "the right image (default: the runtime's, service.filling.border.SURFACE_RUN; 0 carries every "

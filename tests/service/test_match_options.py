@@ -36,6 +36,7 @@ def test_rejects_bad_images(left, right, message: str) -> None:
         ({"p2": "160"}, "p2"),
         ({"p2": 4097.0}, "p2"),
         ({"fill": "yes"}, "fill"),
+        ({"right_sgm": 1}, "right_sgm"),
         ({"shiftable_windows": "yes"}, "shiftable_windows"),
         ({"lr_check_threshold": -0.5}, "lr_check_threshold"),
         ({"lr_check_threshold": float("nan")}, "lr_check_threshold"),

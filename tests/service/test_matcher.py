@@ -82,11 +82,60 @@ def test_a_stricter_left_right_check_keeps_a_subset_of_the_pixels(matcher: Match
     # A slanted plane has fractional disparities: rounded, some land one step from the right view's winner.
     left, right, _, _ = slanted_plane_pair(height=40, width=64)
     options = MatchOptions(max_disparity=24, fill=False, border=False, weighted_median=False)
-    strict = matcher(left, right, options)  # the default threshold, 0.5 px
+    strict = matcher(left, right, dataclasses.replace(options, lr_check_threshold=0.5))
     loose = matcher(left, right, dataclasses.replace(options, lr_check_threshold=1.0))  # MC-CNN's
     kept, kept_loosely = strict.validity == Validity.VALID, loose.validity == Validity.VALID
     assert not (kept & ~kept_loosely).any() and kept.sum() < kept_loosely.sum()
     np.testing.assert_array_equal(strict.disparity[kept], loose.disparity[kept])
+
+
+def _near_object_pair(seed: int, width: int = 160, height: int = 48) -> tuple[np.ndarray, ...]:
+    """Textured background at disparity 6, a textured near object at 20 over left x = 60..99: left x =
+    46..59 is background the right camera does not see (the object hides it)."""
+    rng = np.random.default_rng(seed)
+
+    def texture() -> np.ndarray:
+        noise = rng.uniform(0, 255, (height, width + 2, 3))
+        return (noise[:, :-2] + noise[:, 1:-1] + noise[:, 2:]) / 3.0
+
+    background, near = texture(), texture()
+    left = np.empty_like(background)
+    left[:, 6:], left[:, :6] = background[:, :-6], texture()[:, :6]
+    right = background.copy()
+    right[:, 40:80] = near[:, 40:80]
+    left[:, 60:100] = near[:, 40:80]
+    truth = np.full((height, width), 6.0, np.float32)
+    truth[:, 60:100] = 20.0
+    return left.round().astype(np.uint8), right.round().astype(np.uint8), truth
+
+
+def test_the_right_views_own_sgm_pass_rejects_what_the_left_frame_fattened(matcher: Matcher) -> None:
+    options = MatchOptions(max_disparity=32, fill=False, border=False, weighted_median=False)
+    wrong = {True: 0, False: 0}
+    for seed in (5, 6):
+        left, right, truth = _near_object_pair(seed)
+        unchecked = matcher(left, right, dataclasses.replace(options, lr_check=False))
+        for right_sgm in wrong:
+            result = matcher(left, right, dataclasses.replace(options, right_sgm=right_sgm))
+            kept = result.validity == Validity.VALID
+            # Only the check's right winners differ: the left map is the unchecked one where kept.
+            np.testing.assert_array_equal(result.disparity[kept], unchecked.disparity[kept])
+            wrong[right_sgm] += int(np.sum(np.abs(result.disparity - truth)[kept] > 1))
+            assert ("right_sgm" in result.timings) is right_sgm
+    # Measured with adsm-fast: 48 wrong pixels kept against 150 (the fattened foreground over x = 46..59,
+    # the border columns): the left-aggregated volume's right winners inherit the left frame's fattening.
+    assert 2 * wrong[True] < wrong[False], wrong
+
+
+def test_without_sgm_the_right_views_own_pass_changes_nothing(matcher: Matcher) -> None:
+    # Without aggregation both frames hold the same costs: the same right winners, the same result.
+    left, right, _ = _near_object_pair(5)
+    options = MatchOptions(max_disparity=32, sgm=False)
+    own, read_off = (matcher(left, right, dataclasses.replace(options, right_sgm=flag))
+                     for flag in (True, False))
+    np.testing.assert_array_equal(own.disparity, read_off.disparity)
+    np.testing.assert_array_equal(own.validity, read_off.validity)
+    assert "right_sgm" not in own.timings
 
 
 def test_manifest_defaults_and_width_clipping(matcher: Matcher) -> None:

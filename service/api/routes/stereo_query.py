@@ -55,8 +55,9 @@ def stereo_options(
     lr_check_threshold: Annotated[float, Query(
         ge=0, le=MAX_OFFSET_PX, allow_inf_nan=False,
         description="Largest |DL - DR| in pixels of a pixel the left-right check keeps (the default, "
-        f"{LR_CHECK_THRESHOLD:g}, keeps a pixel when the right view's winner is its own rounded disparity; "
-        "MC-CNN's 1 keeps more pixels at depth edges).")] = LR_CHECK_THRESHOLD,
+        f"{LR_CHECK_THRESHOLD:g}, keeps a pixel when the right view's winner is its own rounded disparity "
+        "or, near the half-way point, the step beside it; MC-CNN's 1 keeps more pixels at depth "
+        "edges).")] = LR_CHECK_THRESHOLD,
     fill: Annotated[bool | None, Query(description="Fill invalid pixels along rays (needs lr_check; "
                                        "default: lr_check).")] = None,
     background_fill: Annotated[bool, Query(description="Fill rejected pixels leaning to the background: an "
@@ -74,6 +75,9 @@ def stereo_options(
                                       "tower_scale^2 times the towers' time.")] = 1,
     adaptive_p2: Annotated[bool, Query(description="Lower SGM's jump penalty across image edges, so depth "
                                        "edges follow image edges.")] = True,
+    right_sgm: Annotated[bool, Query(description="The left-right check's right-view disparities from the "
+                                     "right view's own SGM pass (false: read off the left view's aggregated "
+                                     "costs, one SGM pass fewer; needs lr_check).")] = True,
     border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
                                   "the right image) the disparity of the surface they continue.")] = True,
     border_surface_run: Annotated[int, Query(
@@ -96,7 +100,7 @@ def stereo_options(
             max_disparity=max_disparity, min_disparity=min_disparity, lr_check=lr_check,
             fill=lr_check if fill is None else fill, background_fill=background_fill,
             subpixel=subpixel, shiftable_windows=shiftable_windows, tower_scale=tower_scale, border=border,
-            weighted_median=weighted_median, adaptive_p2=adaptive_p2,
+            weighted_median=weighted_median, adaptive_p2=adaptive_p2, right_sgm=right_sgm,
             lr_check_threshold=lr_check_threshold, border_surface_run=border_surface_run, p1=p1, p2=p2,
         )
     except ValueError as error:  # raised in a dependency it would otherwise end as a 500

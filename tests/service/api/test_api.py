@@ -129,7 +129,7 @@ async def test_disparity_png16_default(client: httpx.AsyncClient) -> None:
     assert response.status_code == 200, response.text
     assert response.headers["content-type"] == "image/png"
     assert response.headers["x-disparity-format"] == "png16"
-    stages = {"decode", "queue", "towers", "cost_volume", "sgm", "encode", "total"}
+    stages = {"decode", "queue", "towers", "cost_volume", "sgm", "right_sgm", "encode", "total"}
     assert stages <= set(stage_names(response))
     assert "x-request-id" in response.headers
     stored = np.asarray(Image.open(io.BytesIO(response.content)))
@@ -241,10 +241,16 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     assert np.mean(np.abs(banded[strip] - SHIFT) <= 1) > 0.95 and not np.array_equal(banded, unbanded)
     assert not np.array_equal(await disparity(adaptive_p2="false"), banded)
     assert not np.array_equal(await disparity(shiftable_windows="true"), banded)
-    # MC-CNN's 1 px check keeps pixels the default 0.5 px rejects (then filled): another map.
+    # MC-CNN's 1 px check keeps pixels the default 0.75 px rejects (then filled): another map.
     assert not np.array_equal(await disparity(lr_check_threshold=1), banded)
-    # A surface run of 1 lets a single chance match inside the strip end the band there: another map.
-    assert not np.array_equal(await disparity(border_surface_run=1), banded)
+    # right_sgm=false reads the check's right winners off the left view's aggregated costs (no second
+    # pass), which keeps a few chance matches inside the strip: another map ...
+    single = await client.post("/disparity", files=PAIR,
+                               params={"max_disparity": 16, "format": "npy", "right_sgm": "false"})
+    assert single.status_code == 200 and "right_sgm" not in stage_names(single)
+    assert not np.array_equal(npy(single), banded)
+    # ... and there a surface run of 1 lets a single chance match end the band: another map again.
+    assert not np.array_equal(await disparity(right_sgm="false", border_surface_run=1), npy(single))
 
 
 async def test_tower_scale_matches_in_image_pixels_within_the_work_limit(client: httpx.AsyncClient) -> None:

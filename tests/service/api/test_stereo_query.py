@@ -12,10 +12,12 @@ from service.match_options import MatchOptions
 def test_stereo_options_build_match_options() -> None:
     # Annotated Query parameters keep plain defaults, so the dependency is callable as a function.
     options = stereo_options(max_disparity=64, min_disparity=-4, subpixel=False, weighted_median=False,
-                             tower_scale=2, lr_check_threshold=1.0, border_surface_run=0, p1=30.0, p2=360.0)
+                             tower_scale=2, lr_check_threshold=1.0, border_surface_run=0, p1=30.0, p2=360.0,
+                             right_sgm=False)
     assert options == MatchOptions(max_disparity=64, min_disparity=-4, subpixel=False, weighted_median=False,
                                    tower_scale=2, lr_check_threshold=1.0, border_surface_run=0, p1=30.0,
-                                   p2=360.0)
+                                   p2=360.0, right_sgm=False)
+    assert stereo_options().right_sgm is MatchOptions().right_sgm is True
     assert stereo_options().lr_check_threshold == MatchOptions().lr_check_threshold
     assert stereo_options().border_surface_run == MatchOptions().border_surface_run
 
