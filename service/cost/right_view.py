@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from service.cost.volume import COST_DTYPE, MAX_COST_SCALE, _to_cost
+from service.cost.volume import COST_DTYPE, _to_cost, check_cost_settings, checked_volume
 from service.jit import njit
 
 
@@ -46,15 +46,8 @@ def right_view_volume(volume: np.ndarray, *, scale: float, min_disparity: int = 
     >>> right_view_volume(left, scale=128.0)[0].tolist()  # right pixel x, cell k <- left pixel x + k
     [[1, 4], [3, 6], [5, 128]]
     """
-    if volume.ndim != 3 or min(volume.shape) < 1:
-        raise ValueError(f"cost volume must be a non-empty (H, W, D) array, got shape {volume.shape}")
-    if volume.dtype != COST_DTYPE:
-        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
-    if isinstance(min_disparity, bool) or not isinstance(min_disparity, int | np.integer):
-        raise ValueError(f"min_disparity must be an integer, got {min_disparity!r}")
-    if not np.isfinite(scale) or not 0 < scale <= MAX_COST_SCALE:
-        raise ValueError(f"cost scale must be a number in (0, {MAX_COST_SCALE:g}], got {scale}")
-    volume = np.ascontiguousarray(volume)
+    volume = checked_volume(volume)
+    check_cost_settings(scale=scale, min_disparity=min_disparity)
     if out is None:
         out = np.empty(volume.shape, COST_DTYPE)
     elif out.shape != volume.shape or out.dtype != COST_DTYPE or not out.flags.c_contiguous:

@@ -106,10 +106,7 @@ def cost_volume(
         )
     if max_disparity < 1:
         raise ValueError(f"max_disparity must be >= 1, got {max_disparity}")
-    if isinstance(min_disparity, bool) or not isinstance(min_disparity, int | np.integer):
-        raise ValueError(f"min_disparity must be an integer, got {min_disparity!r}")
-    if not np.isfinite(scale) or not 0 < scale <= MAX_COST_SCALE:
-        raise ValueError(f"cost scale must be a number in (0, {MAX_COST_SCALE:g}], got {scale}")
+    check_cost_settings(scale=scale, min_disparity=min_disparity)
     _, height, width = left.shape
     shape = (height, width, int(max_disparity))
     if out is None:
@@ -121,6 +118,25 @@ def cost_volume(
     right = np.ascontiguousarray(right, dtype=np.float32)
     _cost_rows(left, right, np.float32(scale), int(min_disparity), out)
     return out
+
+
+def check_cost_settings(*, scale: float, min_disparity: int) -> None:
+    """ValueError unless ``scale`` is a cost scale in (0, MAX_COST_SCALE] and ``min_disparity`` an integer:
+    what every function that writes a volume's cells needs of them."""
+    if isinstance(min_disparity, bool) or not isinstance(min_disparity, int | np.integer):
+        raise ValueError(f"min_disparity must be an integer, got {min_disparity!r}")
+    if not np.isfinite(scale) or not 0 < scale <= MAX_COST_SCALE:
+        raise ValueError(f"cost scale must be a number in (0, {MAX_COST_SCALE:g}], got {scale}")
+
+
+def checked_volume(volume: np.ndarray) -> np.ndarray:
+    """``volume`` as a C-contiguous array after checking that it is a non-empty int16 ``(H, W, D)`` cost
+    volume: what every kernel that reads a whole volume needs first."""
+    if volume.ndim != 3 or min(volume.shape) < 1:
+        raise ValueError(f"cost volume must be a non-empty (H, W, D) array, got shape {volume.shape}")
+    if volume.dtype != COST_DTYPE:
+        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
+    return np.ascontiguousarray(volume)
 
 
 def checked_winners(volume: np.ndarray, winners: np.ndarray) -> np.ndarray:

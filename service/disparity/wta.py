@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from service.cost import COST_DTYPE
+from service.cost import checked_volume
 from service.jit import njit
 
 
@@ -57,17 +57,9 @@ def _left_right_winners(volume, min_disparity, left, right):  # type: ignore[no-
                     right[y, match - d] = d
 
 
-def _check(volume: np.ndarray) -> np.ndarray:
-    if volume.ndim != 3 or min(volume.shape) < 1:
-        raise ValueError(f"cost volume must be a non-empty (H, W, D) array, got shape {volume.shape}")
-    if volume.dtype != COST_DTYPE:
-        raise ValueError(f"cost volume must be int16 (service.cost.cost_volume), got {volume.dtype}")
-    return np.ascontiguousarray(volume)
-
-
 def winner_takes_all(volume: np.ndarray) -> np.ndarray:
     """int32 HxW argmin over d of an ``(H, W, D)`` cost volume."""
-    volume = _check(volume)
+    volume = checked_volume(volume)
     left = np.empty(volume.shape[:2], np.int32)
     _winners(volume, left)
     return left
@@ -80,7 +72,7 @@ def left_right_winners(volume: np.ndarray, *, min_disparity: int = 0) -> tuple[n
     ``right[y, x] = argmin_k volume[y, x + min_disparity + k, k]`` over the cells whose left pixel lies in
     the image; 0 where there is none.
     """
-    volume = _check(volume)
+    volume = checked_volume(volume)
     left = np.empty(volume.shape[:2], np.int32)
     right = np.empty(volume.shape[:2], np.int32)
     _left_right_winners(volume, int(min_disparity), left, right)
