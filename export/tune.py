@@ -3,6 +3,7 @@
     python -m export.tune --model service/models/NAME              # print the grid and the choice
     python -m export.tune --model DIR --write                      # ... and write it into manifest.json
     python -m export.tune --model DIR --shiftable-windows --write  # tuned with the step, which it records
+    python -m export.tune --model DIR --no-border-band --write     # tuned without the border band, likewise
 
 The rule is ``service.evaluation.tuning.tune_penalties``: every (P1, P2) of the grid through the runtime's
 Matcher on the synthetic validation split (``--pairs`` of it, 20 by default: ``synthetic:20``), the lowest
@@ -29,32 +30,37 @@ from service.features.manifest import ModelError, load_manifest, write_manifest
 
 def tune_folder(folder: str | Path, *, pairs: int = 20, p1_grid: Sequence[float] = P1_GRID,
                 p2_grid: Sequence[float] = P2_GRID, log: Any = None,
-                shiftable_windows: bool | None = None) -> tuple[dict[str, float], str]:
+                shiftable_windows: bool | None = None,
+                border_band: bool | None = None) -> tuple[dict[str, float], str]:
     """The rule's (P1, P2) for ``folder`` and the ``sgm.tuned_on`` text that says how it was chosen.
 
-    ``shiftable_windows`` tunes with that step on or off (None: as the folder's manifest says).
+    ``shiftable_windows`` and ``border_band`` tune with that step on or off (None: as the folder's
+    manifest says).
     """
     from service.datasets import open_dataset
     from service.matcher import Matcher, MatchOptions
 
     spec = f"{TUNING_DATA.partition(':')[0]}:{pairs}"
     matcher = Matcher.from_folder(folder)  # verifies both towers' sha256
-    options = MatchOptions(shiftable_windows=shiftable_windows)
+    options = MatchOptions(shiftable_windows=shiftable_windows, border=border_band)
     choice, _ = tune_penalties(matcher, open_dataset(spec), p1_grid=p1_grid, p2_grid=p2_grid, log=log,
                                options=options)
     grid = f"grid P1 {list(p1_grid)} x P2 {list(p2_grid)}"
     grid += ", shiftable windows on" if matcher.uses_shiftable_windows(options) else ""
+    grid += "" if matcher.uses_border_band(options) else ", border band off"
     return choice, f"{grid}, lowest bad-2 on the synthetic validation split ({pairs} pairs; export.tune)"
 
 
 def write_penalties(folder: str | Path, choice: dict[str, float], tuned_on: str, *, command: str,
-                    shiftable_windows: bool | None = None) -> Path:
-    """Set the folder's ``sgm`` to ``choice`` (and ``sgm.shiftable_windows`` unless None) and re-measure
-    the metrics it records."""
+                    shiftable_windows: bool | None = None, border_band: bool | None = None) -> Path:
+    """Set the folder's ``sgm`` to ``choice`` (and ``sgm.shiftable_windows``, ``filling.border_band``
+    unless None) and re-measure the metrics it records."""
     manifest = load_manifest(folder)
     manifest["sgm"] = {**manifest["sgm"], "p1": choice["p1"], "p2": choice["p2"], "tuned_on": tuned_on}
     if shiftable_windows is not None:
         manifest["sgm"]["shiftable_windows"] = shiftable_windows
+    if border_band is not None:
+        manifest["filling"] = {**manifest.get("filling", {}), "border_band": border_band}
     datasets = datasets_of(manifest)
     manifest["metrics"] = {}
     path = write_manifest(folder, manifest)
@@ -73,6 +79,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shiftable-windows", action=argparse.BooleanOptionalAction, default=None,
                         help="tune with the shiftable-window step on / off and record it in the manifest "
                         "with --write (default: as the manifest says)")
+    parser.add_argument("--border-band", action=argparse.BooleanOptionalAction, default=None,
+                        help="tune with the border band step on / off and record it in the manifest "
+                        "(filling.border_band) with --write (default: as the manifest says)")
     parser.add_argument("--write", action="store_true", help="write the choice into DIR/manifest.json")
     args = parser.parse_args(argv)
     command = " ".join(["python", "-m", "export.tune", *(sys.argv[1:] if argv is None else argv)])
@@ -82,11 +91,13 @@ def main(argv: list[str] | None = None) -> int:
         load_manifest(args.model)  # a clear error before any matching
         choice, tuned_on = tune_folder(args.model, pairs=args.pairs, p1_grid=args.p1, p2_grid=args.p2,
                                        log=lambda row: print(row, file=sys.stderr),
-                                       shiftable_windows=args.shiftable_windows)
+                                       shiftable_windows=args.shiftable_windows,
+                                       border_band=args.border_band)
         print(json.dumps(choice))
         if args.write:
             path = write_penalties(args.model, choice, tuned_on, command=command,
-                                   shiftable_windows=args.shiftable_windows)
+                                   shiftable_windows=args.shiftable_windows,
+                                   border_band=args.border_band)
             print(f"wrote {path}", file=sys.stderr)
     except (OSError, ValueError, ModelError) as error:
         print(f"export.tune: error: {error}", file=sys.stderr)

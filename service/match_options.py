@@ -54,7 +54,10 @@ class MatchOptions:
     # to the left; mismatches: the lower tercile of the rays), not by MC-CNN's rules, which copy the
     # fattened foreground into the holes: service/filling/rays.py.
     background_fill: bool = True
-    border: bool = True  # give the left border band (match left of the right image) its surface's disparity
+    # Give the left border band (match left of the right image) its surface's disparity. None -> manifest
+    # filling.border_band (absent: on); off where the folder's own P1/P2 measure better without it, as
+    # for towers whose right-view check already rejects the band's wrong matches (docs/training.md).
+    border: bool | None = None
     # The band ends at a run of this many accepted pixels at one disparity matched inside the right image (a
     # farther surface the right camera saw); 0 carries every band to the border (service/filling/border.py).
     border_surface_run: int = SURFACE_RUN
@@ -95,10 +98,12 @@ class MatchOptions:
                 or not isinstance(self.border_surface_run, int | np.integer) or self.border_surface_run < 0):
             raise ValueError(f"border_surface_run must be an integer number of pixels >= 0, "
                              f"got {self.border_surface_run!r}")
-        if self.shiftable_windows is not None and not isinstance(self.shiftable_windows, bool | np.bool_):
-            raise ValueError(f"shiftable_windows must be true, false or None, got {self.shiftable_windows!r}")
+        for name in ("shiftable_windows", "border"):  # None: the model's setting
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, bool | np.bool_):
+                raise ValueError(f"{name} must be true, false or None, got {value!r}")
         for name in ("sgm", "adaptive_p2", "subpixel", "lr_check", "right_sgm", "fill", "background_fill",
-                     "border", "weighted_median", "confidence"):
+                     "weighted_median", "confidence"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
 

@@ -135,7 +135,7 @@ class Matcher:
     def _warm_kernels(self, left: np.ndarray, right: np.ndarray) -> None:
         # All on: cost volume, shiftable windows, SGM, winner-takes-all, sub-pixel, confidence, the right
         # view's volume and SGM, inner check, filling; right_sgm off: both views' winners in one pass.
-        every_kernel = MatchOptions(max_disparity=4, confidence=True, shiftable_windows=True)
+        every_kernel = MatchOptions(max_disparity=4, confidence=True, shiftable_windows=True, border=True)
         for options in (every_kernel, MatchOptions(max_disparity=4, right_sgm=False)):
             self(left, right, options)
 
@@ -163,6 +163,12 @@ class Matcher:
         if options.shiftable_windows is None:
             return bool(self.manifest["sgm"].get("shiftable_windows", False))
         return bool(options.shiftable_windows)
+
+    def uses_border_band(self, options: MatchOptions) -> bool:
+        """Whether a call with ``options`` runs the border band step (None: the manifest's setting)."""
+        if options.border is None:
+            return bool(self.manifest.get("filling", {}).get("border_band", True))
+        return bool(options.border)
 
     def search_range(self, width: int, options: MatchOptions) -> SearchRange:
         """The range a call searches (service/limits.py): the option's, else the model's default size
@@ -285,7 +291,7 @@ class Matcher:
                 disparity[validity != Validity.VALID] = np.nan
         else:
             validity = np.zeros(disparity.shape, np.uint8)
-        if options.border:
+        if self.uses_border_band(options):
             disparity, validity = fill_border_band(disparity, validity,
                                                    surface_run=options.border_surface_run)
             lap("border")

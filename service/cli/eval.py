@@ -41,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
              "kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH")
     add("--max-disparity", type=int, metavar="D",
         help="disparity range D (default: the dataset's recommendation, else the model's)")
-    add_match_flags(add, steps=("adaptive_p2", "right_sgm", "background_fill", "border", "weighted_median"))
+    add_match_flags(add, steps=("adaptive_p2", "right_sgm", "background_fill", "weighted_median"))
     add("--confidence", action="store_true",
         help="also compute the confidence map and print its sparsification curve (bad-2 of the most "
         "confident 10..100 %% of the pixels)")

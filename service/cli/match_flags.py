@@ -20,7 +20,6 @@ STEP_SWITCHES = {
                        "left; mismatch: the median of 16 rays) instead of leaning to the background",
     "subpixel": "integer disparities (no quadratic fit)",
     "adaptive_p2": "constant SGM jump penalty (not lowered at image edges)",
-    "border": "leave the left border band (match left of the right image) as matched",
     "weighted_median": "no image-guided weighted median at depth edges",
 }
 
@@ -29,6 +28,8 @@ MODEL_STEPS = {
     "shiftable_windows": "before SGM, each cost the lowest of its row neighbours' (x +- 1) at the same "
                          "disparity: windows that can shift off a depth edge (default: the model's "
                          "sgm.shiftable_windows)",
+    "border": "give the left border band (match left of the right image) the disparity of the surface it "
+              "continues; --no-border leaves it as matched (default: the model's filling.border_band)",
 }
 
 

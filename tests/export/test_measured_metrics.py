@@ -85,11 +85,15 @@ def measured_cones(name: str) -> dict:
 @functools.cache
 def cones_disparity(name: str, penalties_of: str | None = None) -> np.ndarray:
     """Disparity of the shipped model on Cones with the runtime's defaults and D = 64 (as adsm eval); with
-    ``penalties_of``, at that folder's P1/P2 instead of its own."""
+    ``penalties_of``, at that folder's P1/P2 and model steps (shiftable windows, border band) instead of
+    its own."""
     sample = open_dataset(f"cones:{CONES_FOLDER}")[0]
     matcher = Matcher.from_folder(MODELS / name)
-    sgm = load_manifest(MODELS / (penalties_of or name))["sgm"]
-    options = MatchOptions(max_disparity=sample.max_disparity, p1=sgm["p1"], p2=sgm["p2"])
+    settings = load_manifest(MODELS / (penalties_of or name))
+    sgm = settings["sgm"]
+    options = MatchOptions(max_disparity=sample.max_disparity, p1=sgm["p1"], p2=sgm["p2"],
+                           shiftable_windows=sgm.get("shiftable_windows", False),
+                           border=settings.get("filling", {}).get("border_band", True))
     return matcher(sample.left, sample.right, options).disparity
 
 
@@ -143,8 +147,8 @@ def test_fresh_cones_run_reproduces_the_manifest(name):
 def test_int8_twin_matches_fp32_on_cones(fp32, int8):
     assert INT8_PAIRS, "no shipped int8 twin"
     truth, _ = cones_truth()
-    # At the fp32 folder's penalties: each folder is tuned on its own, so the twins' may differ, and only
-    # the quantization is what this bounds.
+    # At the fp32 folder's penalties and steps: each folder is tuned on its own, so the twins' may differ,
+    # and only the quantization is what this bounds.
     reference, quantized = cones_disparity(fp32), cones_disparity(int8, penalties_of=fp32)
     bad2 = [count_errors(d, truth).summary()["bad2"] for d in (reference, quantized)]
     assert abs(bad2[1] - bad2[0]) <= MAX_INT8_BAD2_DELTA, f"bad-2 fp32 {bad2[0]:.2f} %, int8 {bad2[1]:.2f} %"

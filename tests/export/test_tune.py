@@ -60,6 +60,24 @@ def test_shiftable_windows_are_tuned_with_and_recorded(tmp_path: Path,
     assert load_manifest(folder)["sgm"]["shiftable_windows"] is False
 
 
+def test_the_border_band_is_tuned_with_and_recorded(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    folder = _measured_folder(tmp_path)
+    grid = ["--model", str(folder), "--pairs", "1", "--p1", "30", "--p2", "160"]
+    assert main([*grid, "--border-band"]) == 0
+    banded = json.loads(capsys.readouterr().err.splitlines()[0])
+    assert main([*grid, "--no-border-band", "--write"]) == 0
+    unbanded = json.loads(capsys.readouterr().err.splitlines()[0])
+    assert unbanded["bad2"] != banded["bad2"]  # the step's switch reached the tuning
+    written = load_manifest(folder)
+    assert written["filling"] == {"border_band": False}
+    assert "border band off" in written["sgm"]["tuned_on"]
+    entry = written["metrics"]["synthetic-validation"]  # measured without the step: the tuning's figure
+    assert entry["bad2"] == pytest.approx(unbanded["bad2"], abs=1e-3)
+    assert main([*grid, "--border-band", "--write"]) == 0
+    assert load_manifest(folder)["filling"] == {"border_band": True}
+
+
 def test_bad_arguments_end_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--model", str(tmp_path / "missing")]) == 1
     assert main(["--model", str(tmp_path), "--pairs", "0"]) == 1

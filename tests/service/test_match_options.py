@@ -42,6 +42,7 @@ def test_rejects_bad_images(left, right, message: str) -> None:
         ({"lr_check_threshold": float("nan")}, "lr_check_threshold"),
         ({"lr_check_threshold": True}, "lr_check_threshold"),
         ({"lr_check_threshold": "1"}, "lr_check_threshold"),
+        ({"border": "yes"}, "border"),
         ({"border_surface_run": -1}, "border_surface_run"),
         ({"border_surface_run": 2.5}, "border_surface_run"),
         ({"border_surface_run": False}, "border_surface_run"),

@@ -62,8 +62,9 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     np.testing.assert_array_equal(filled.disparity[~invalid], unfilled.disparity[~invalid])
     assert "fill" in filled.timings and "border" not in filled.timings
 
-    banded = matcher(left, right, MatchOptions(**options))      # the border band step is on by default
-    constant = matcher(left, right, MatchOptions(**options, adaptive_p2=False))
+    # The border band step, asked for (the default model's manifest turns it off: filling.border_band).
+    banded = matcher(left, right, MatchOptions(**options, border=True))
+    constant = matcher(left, right, MatchOptions(**options, border=True, adaptive_p2=False))
     assert constant.timings.keys() == banded.timings.keys()
     changed = banded.disparity != filled.disparity
     assert "border" in banded.timings and changed.any()
@@ -71,7 +72,7 @@ def test_switches_change_the_pipeline(matcher: Matcher) -> None:
     columns = np.broadcast_to(np.arange(left.shape[1]), changed.shape)
     assert np.all(columns[changed] < banded.disparity[changed])
 
-    default = matcher(left, right, MatchOptions(max_disparity=24))  # ... and so is the weighted median, last
+    default = matcher(left, right, MatchOptions(max_disparity=24, border=True))  # the weighted median, last
     assert list(default.timings)[-2:] == ["weighted_median", "total"]
     assert "weighted_median" not in banded.timings
     np.testing.assert_array_equal(default.disparity, weighted_median(banded.disparity, left))
@@ -174,6 +175,30 @@ def test_shiftable_windows_default_to_the_manifest(tmp_path) -> None:
     assert "shiftable_windows" not in off.timings
     plain = source(left, right, MatchOptions(max_disparity=24, shiftable_windows=False))
     np.testing.assert_array_equal(off.disparity, plain.disparity)
+
+
+def test_the_border_band_defaults_to_the_manifest(tmp_path) -> None:
+    """filling.border_band: absent -> the step runs; false -> it does not unless a call asks for it."""
+    source = Matcher.from_folder(threads=2)
+    folder = tmp_path / "model"
+    shutil.copytree(default_model_dir(), folder)
+    manifest = load_manifest(folder)
+    manifest.pop("filling", None)
+    write_manifest(folder, manifest)
+    absent = Matcher.from_folder(folder, threads=2)
+    left, right, _, _ = slanted_plane_pair(height=40, width=64)
+    assert "border" in absent(left, right, MatchOptions(max_disparity=24)).timings
+    manifest["filling"] = {"border_band": False}
+    write_manifest(folder, manifest)
+    unbanded = Matcher.from_folder(folder, threads=2)
+    default = unbanded(left, right, MatchOptions(max_disparity=24))
+    assert "border" not in default.timings
+    asked = unbanded(left, right, MatchOptions(max_disparity=24, border=True))
+    assert "border" in asked.timings
+    np.testing.assert_array_equal(asked.disparity,
+                                  source(left, right, MatchOptions(max_disparity=24, border=True)).disparity)
+    np.testing.assert_array_equal(default.disparity,
+                                  source(left, right, MatchOptions(max_disparity=24, border=False)).disparity)
 
 
 def test_bad_model_folder_raises_model_error(tmp_path) -> None:

@@ -78,8 +78,9 @@ def stereo_options(
     right_sgm: Annotated[bool, Query(description="The left-right check's right-view disparities from the "
                                      "right view's own SGM pass (false: read off the left view's aggregated "
                                      "costs, one SGM pass fewer; needs lr_check).")] = True,
-    border: Annotated[bool, Query(description="Give the left border band (pixels whose match lies left of "
-                                  "the right image) the disparity of the surface they continue.")] = True,
+    border: Annotated[bool | None, Query(description="Give the left border band (pixels whose match lies "
+                                         "left of the right image) the disparity of the surface they "
+                                         "continue (default: the model's filling.border_band).")] = None,
     border_surface_run: Annotated[int, Query(
         ge=0, le=int(MAX_OFFSET_PX),
         description="The border band ends at a run of this many accepted pixels at one disparity that "

@@ -236,7 +236,7 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     smooth = await disparity(p1=0, p2=0, lr_check="false")  # no smoothness: a plain NCC winner
     assert not np.array_equal(smooth, unchecked)
     # The border band step gives the left strip (x < SHIFT, match outside the right image) the shift.
-    banded, unbanded = await disparity(), await disparity(border="false")
+    banded, unbanded = await disparity(border="true"), await disparity(border="false")
     strip = (slice(None), slice(0, SHIFT))
     assert np.mean(np.abs(banded[strip] - SHIFT) <= 1) > 0.95 and not np.array_equal(banded, unbanded)
     assert not np.array_equal(await disparity(adaptive_p2="false"), banded)
@@ -245,12 +245,13 @@ async def test_switches_change_the_result(client: httpx.AsyncClient) -> None:
     assert not np.array_equal(await disparity(lr_check_threshold=1), banded)
     # right_sgm=false reads the check's right winners off the left view's aggregated costs (no second
     # pass), which keeps a few chance matches inside the strip: another map ...
-    single = await client.post("/disparity", files=PAIR,
-                               params={"max_disparity": 16, "format": "npy", "right_sgm": "false"})
+    single = await client.post("/disparity", files=PAIR, params={"max_disparity": 16, "format": "npy",
+                                                                 "right_sgm": "false", "border": "true"})
     assert single.status_code == 200 and "right_sgm" not in stage_names(single)
     assert not np.array_equal(npy(single), banded)
     # ... and there a surface run of 1 lets a single chance match end the band: another map again.
-    assert not np.array_equal(await disparity(right_sgm="false", border_surface_run=1), npy(single))
+    assert not np.array_equal(await disparity(right_sgm="false", border="true", border_surface_run=1),
+                              npy(single))
 
 
 async def test_tower_scale_matches_in_image_pixels_within_the_work_limit(client: httpx.AsyncClient) -> None:

@@ -24,9 +24,11 @@ def test_no_flags_give_the_runtimes_defaults() -> None:
 def test_flags_set_their_fields() -> None:
     options = match_options(parse("--lr-check-threshold", "1", "--tower-scale", "2", "--p1", "30",
                                   "--no-weighted-median", "--shiftable-windows", "--border-surface-run", "0",
-                                  "--no-right-sgm"))
+                                  "--no-right-sgm", "--no-border"))
     assert options == MatchOptions(lr_check_threshold=1.0, tower_scale=2, p1=30.0, weighted_median=False,
-                                   shiftable_windows=True, border_surface_run=0, right_sgm=False)
+                                   shiftable_windows=True, border_surface_run=0, right_sgm=False,
+                                   border=False)
+    assert match_options(parse("--border")).border is True
 
 
 def test_a_negative_threshold_is_refused_by_match_options() -> None:

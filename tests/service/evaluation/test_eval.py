@@ -152,12 +152,13 @@ def test_adsm_eval_switches_reach_the_matcher(tiny_cones, capsys):
         return json.loads(capsys.readouterr().out)["options"]
 
     default = options()
-    assert default["border"] is True and default["adaptive_p2"] is True
-    assert default["shiftable_windows"] is None  # the model's setting
+    assert default["adaptive_p2"] is True
+    assert default["shiftable_windows"] is None and default["border"] is None  # the model's settings
     switched = options("--no-border", "--no-adaptive-p2", "--shiftable-windows")
     assert switched["border"] is False and switched["adaptive_p2"] is False
     assert switched["shiftable_windows"] is True
     assert options("--no-shiftable-windows")["shiftable_windows"] is False
+    assert options("--border")["border"] is True
 
 
 def test_adsm_eval_noise_degrades_the_ncc_baseline_and_is_reported(capsys, cones_dir):
