@@ -160,15 +160,17 @@ class Matcher:
 
     def uses_shiftable_windows(self, options: MatchOptions) -> bool:
         """Whether a call with ``options`` runs the shiftable-window step (None: the manifest's setting)."""
-        if options.shiftable_windows is None:
-            return bool(self.manifest["sgm"].get("shiftable_windows", False))
-        return bool(options.shiftable_windows)
+        return self._model_step(options.shiftable_windows, "sgm", "shiftable_windows", absent=False)
 
     def uses_border_band(self, options: MatchOptions) -> bool:
         """Whether a call with ``options`` runs the border band step (None: the manifest's setting)."""
-        if options.border is None:
-            return bool(self.manifest.get("filling", {}).get("border_band", True))
-        return bool(options.border)
+        return self._model_step(options.border, "filling", "border_band", absent=True)
+
+    def _model_step(self, asked: bool | None, section: str, key: str, *, absent: bool) -> bool:
+        # A step whose default is the model's: the call's choice, else manifest[section][key], else absent.
+        if asked is None:
+            return bool(self.manifest.get(section, {}).get(key, absent))
+        return bool(asked)
 
     def search_range(self, width: int, options: MatchOptions) -> SearchRange:
         """The range a call searches (service/limits.py): the option's, else the model's default size
