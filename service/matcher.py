@@ -10,7 +10,8 @@ int16 cost volumes, results), checked against ``max_request_bytes`` before anyth
 towers run in tiles (service/features/tiles.py) so that one ONNX run's work area is bounded for every
 aspect ratio; the features are dropped as soon as the cost volume exists. Both volumes live in a
 :class:`~service.cost.VolumeWorkspace` kept between calls (``reuse_volumes=False`` allocates them per
-call instead; see that module for the measurement).
+call instead; see that module for the measurement). With ``device="cuda"`` the stages from the cost volume
+to the fill run on the GPU instead (service/cuda, docs/gpu.md), the rest as here.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,7 @@ import numpy as np
 from service import jit
 from service.aggregation import shiftable_windows
 from service.cost import VolumeWorkspace, cost_volume, right_view_volume
+from service.cuda import check_device, require_cuda
 from service.disparity import left_right_winners, winner_takes_all
 from service.features import FeatureTowers, Towers, default_model_dir, load_manifest
 from service.features.tiles import tiled_features
@@ -74,6 +76,7 @@ class Matcher:
         threads: int | None = None,
         reuse_volumes: bool = True,
         max_request_bytes: int | None = None,
+        device: str | None = None,
     ) -> None:
         if threads is not None and not 1 <= threads <= MAX_THREADS:
             raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {threads}")
@@ -84,6 +87,14 @@ class Matcher:
         self.manifest: dict[str, Any] = towers.manifest
         self.workspace = VolumeWorkspace() if reuse_volumes else None
         self._preparing: list[threading.Thread] = []
+        # "cpu" or "cuda" (service/cuda): where the stages after the towers run.
+        self.device = check_device(device)
+        self._device_workspace: Any = None
+        if self.device == "cuda":
+            require_cuda()
+            from service.cuda.pipeline import DeviceWorkspace
+
+            self._device_workspace = DeviceWorkspace()
 
     @classmethod
     def from_folder(
@@ -95,19 +106,27 @@ class Matcher:
         reuse_volumes: bool = True,
         max_request_bytes: int | None = None,
         prepare_for: tuple[int, int, MatchOptions] | None = None,
+        device: str | None = None,
     ) -> Matcher:
         """Load (and sha256-verify) a model folder; ``None`` is the default shipped model.
 
         ``prepare_for=(height, width, options)``: the first call's pair, when it is known before the model
         loads (``adsm predict`` reads it from the headers): :meth:`prepare` starts before the towers'
-        sessions are built, so its work overlaps the model load and the decoding."""
+        sessions are built, so its work overlaps the model load and the decoding.
+
+        ``device``: ``"cpu"`` (the default) or ``"cuda"``, where the stages after the towers run (None:
+        ``$ADSM_DEVICE``, else the CPU); :class:`~service.cuda.CudaUnavailableError` where no GPU is
+        usable."""
         folder = default_model_dir() if folder is None else Path(folder)
+        device = check_device(device)
+        if device == "cuda":
+            require_cuda()  # before the model loads: the error, not a minute's wait, comes first
         workspace = VolumeWorkspace() if reuse_volumes else None
         preparing = [] if prepare_for is None else _start_preparing(load_manifest(folder), workspace,
                                                                     *prepare_for)
         towers = FeatureTowers(folder, threads=threads, providers=providers)
         matcher = cls(towers, threads=threads, reuse_volumes=reuse_volumes,
-                      max_request_bytes=max_request_bytes)
+                      max_request_bytes=max_request_bytes, device=device)
         matcher.workspace = workspace
         matcher._preparing = preparing
         return matcher
@@ -233,10 +252,34 @@ class Matcher:
             self._prepared()
             lap("prepare")
 
-        left_features, right_features = tiled_features(self.towers, left, right, scale=options.tower_scale)
+        # A list the stages empty: the features are freed as soon as the cost volume exists.
+        features = list(tiled_features(self.towers, left, right, scale=options.tower_scale))
         lap("towers")
-        scale = float(self.manifest["cost"]["scale"])
-        shape = (left.shape[0], width, disparities)
+        match_volume = self._match_on_cpu if self._device_workspace is None else self._match_on_gpu
+        disparity, validity, confidence = match_volume(
+            features, left, right, disparities=disparities, offset=offset,
+            scale=float(self.manifest["cost"]["scale"]), p1=p1, p2=p2, options=options, lap=lap)
+        if self.uses_border_band(options):
+            disparity, validity = fill_border_band(disparity, validity,
+                                                   surface_run=options.border_surface_run)
+            lap("border")
+        if options.weighted_median:
+            disparity = weighted_median(disparity, left)
+            lap("weighted_median")
+        if confidence is not None:
+            confidence = weigh_by_check(confidence, validity, disparity)
+        timings["total"] = time.perf_counter() - start
+        return StereoResult(disparity, validity, timings, confidence)
+
+    def _match_on_cpu(
+        self, features: list[np.ndarray], left: np.ndarray, right: np.ndarray, *, disparities: int,
+        offset: int, scale: float, p1: float, p2: float, options: MatchOptions, lap: Callable[[str], None],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The stages from the cost volume to the fill on the CPU (Numba): (disparity, validity, the
+        peak-ratio confidence or None)."""
+        left_features, right_features = features
+        features.clear()
+        shape = (left.shape[0], left.shape[1], disparities)
         raw, aggregated = (None, None) if self.workspace is None else self.workspace.volumes(shape)
         volume = cost_volume(left_features, right_features, disparities, scale=scale, min_disparity=offset,
                              out=raw)
@@ -293,17 +336,21 @@ class Matcher:
                 disparity[validity != Validity.VALID] = np.nan
         else:
             validity = np.zeros(disparity.shape, np.uint8)
-        if self.uses_border_band(options):
-            disparity, validity = fill_border_band(disparity, validity,
-                                                   surface_run=options.border_surface_run)
-            lap("border")
-        if options.weighted_median:
-            disparity = weighted_median(disparity, left)
-            lap("weighted_median")
-        if confidence is not None:
-            confidence = weigh_by_check(confidence, validity, disparity)
-        timings["total"] = time.perf_counter() - start
-        return StereoResult(disparity, validity, timings, confidence)
+        return disparity, validity, confidence
+
+    def _match_on_gpu(
+        self, features: list[np.ndarray], left: np.ndarray, right: np.ndarray, *, disparities: int,
+        offset: int, scale: float, p1: float, p2: float, options: MatchOptions, lap: Callable[[str], None],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The same stages on the GPU (service/cuda/pipeline.py)."""
+        from service.cuda.pipeline import match_volume
+
+        left_features, right_features = features
+        features.clear()
+        return match_volume(left_features, right_features, left, right, disparities=disparities,
+                            min_disparity=offset, scale=scale, p1=p1, p2=p2, options=options,
+                            shiftable=self.uses_shiftable_windows(options), workspace=self._device_workspace,
+                            lap=lap)
 
 
 def _start_preparing(manifest: dict[str, Any], workspace: VolumeWorkspace | None, height: int, width: int,

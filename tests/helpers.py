@@ -60,6 +60,21 @@ def require_module(name: str) -> ModuleType:
         raise  # not reached: require skipped or failed
 
 
+def require_gpu() -> None:
+    """Skip the calling test (or module) where Numba finds no CUDA GPU, with the reason, under CI too.
+
+    The one prerequisite that CI never has: its machines have no GPU by design (DEVELOPERS.md), so a
+    failure there would only say so. The GPU tests are not unchecked for it: tests/service/cuda/
+    test_simulated.py runs them in every run on Numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``),
+    where this passes, and on a GPU machine they run on the GPU.
+    """
+    from numba import cuda
+
+    if not cuda.is_available():
+        pytest.skip("no CUDA GPU here (numba.cuda.is_available() is False); tests/service/cuda/"
+                    "test_simulated.py runs these tests on Numba's CUDA simulator", allow_module_level=True)
+
+
 def cones_folder() -> Path:
     """The Cones pair's folder, or :func:`require`'s skip / CI failure when it is not beside the checkout."""
     require((CONES / "left.png").is_file() and (CONES / "disp_left.png").is_file(),

@@ -98,7 +98,8 @@ class InferenceService:
         if not jit.is_configured():  # embedded without `adsm serve`: the service starts here
             jit.configure_cache()
         if self.matcher is None:
-            self.matcher = Matcher.from_folder(self.settings.model_dir, threads=self.settings.threads)
+            self.matcher = Matcher.from_folder(self.settings.model_dir, threads=self.settings.threads,
+                                                   device=self.settings.device)
         self.metrics.model.labels(name=str(self.matcher.manifest.get("name", "unknown"))).set(1)
 
     def warm(self) -> None:

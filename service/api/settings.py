@@ -9,6 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from service.cuda import DEVICE_ENVIRONMENT, check_device
 from service.features.towers import MAX_THREADS
 from service.memory import DEFAULT_MAX_REQUEST_BYTES
 
@@ -19,6 +20,7 @@ class Settings:
 
     model_dir: Path | None = None  # None -> the default model shipped inside the package
     threads: int | None = None  # Numba / ONNX Runtime threads per process; None -> all cores
+    device: str = "cpu"  # where the stages after the towers run: "cpu" or "cuda" (service/cuda)
     queue_size: int = 4  # requests that may wait while one inference runs; more -> 503 at once
     max_body_bytes: int = 32 * 1024 * 1024  # whole request body, multipart framing included
     max_pixels: int = 2_100_000  # per image, checked on the header before decoding (1920x1080 fits)
@@ -48,6 +50,7 @@ class Settings:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.threads is not None and not 1 <= self.threads <= MAX_THREADS:
             raise ValueError(f"threads must be in 1..{MAX_THREADS}, got {self.threads}")
+        check_device(self.device)
         for name in ("body_timeout_s", "write_timeout_s"):
             timeout = getattr(self, name)
             # bool is an int to Python, and nan/inf would silently mean "no deadline": refuse them all.
@@ -58,14 +61,17 @@ class Settings:
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None) -> Settings:
-        """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_QUEUE_SIZE``, ``ADSM_MAX_BODY_BYTES``,
-        ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``, ``ADSM_MAX_REQUEST_BYTES``,
+        """Read ``ADSM_MODEL_DIR``, ``ADSM_THREADS``, ``ADSM_DEVICE``, ``ADSM_QUEUE_SIZE``,
+        ``ADSM_MAX_BODY_BYTES``, ``ADSM_MAX_PIXELS``, ``ADSM_MAX_DISPARITY``, ``ADSM_MAX_COST_CELLS``,
+        ``ADSM_MAX_REQUEST_BYTES``,
         ``ADSM_BODY_TIMEOUT_S``, ``ADSM_WRITE_TIMEOUT_S``, ``ADSM_MAX_UNSENT_BYTES`` and ``ADSM_WARMUP``;
         unset or empty keeps the default."""
         env = os.environ if environ is None else environ
         values: dict[str, Any] = {}
         if model_dir := env.get("ADSM_MODEL_DIR"):
             values["model_dir"] = Path(model_dir)
+        if device := env.get(DEVICE_ENVIRONMENT, "").strip():
+            values["device"] = device
         for field, parse in (
             ("threads", _parse_int),
             ("queue_size", _parse_int),

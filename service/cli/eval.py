@@ -19,6 +19,7 @@ from typing import Any
 
 from service.cli.match_flags import add_match_flags, match_options
 from service.cli.reports import emit_report, report_path
+from service.cuda import DEVICE_HELP, DEVICES
 from service.datasets import open_dataset
 from service.datasets.noise import NoisyViews
 from service.evaluation import BAD_THRESHOLDS
@@ -49,6 +50,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="add Gaussian noise of SIGMA grey levels (0-255) to both views of every pair, seeded per pair: "
              "how the model degrades with noisier cameras (service/datasets/noise.py)")
     add("--threads", type=int, metavar="N", help="ONNX Runtime and Numba threads (default: all CPUs)")
+    add("--device", choices=DEVICES, help=DEVICE_HELP)
     add("--json", metavar="OUT", help="write the full report as JSON to OUT ('-': stdout, no table)")
     parser.set_defaults(func=run)
 
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from service.evaluation.evaluate import evaluate
     from service.matcher import Matcher
 
-    matcher = Matcher.from_folder(args.model, threads=args.threads)
+    matcher = Matcher.from_folder(args.model, threads=args.threads, device=args.device)
     options = dataclasses.replace(match_options(args), confidence=args.confidence)
     matcher.warmup()
 

@@ -13,6 +13,8 @@ import os
 import sys
 from typing import TYPE_CHECKING
 
+from service.cuda import DEVICE_HELP, DEVICES
+
 if TYPE_CHECKING:  # imported when serving only: `adsm predict` must not pay for FastAPI
     from service.api.settings import Settings
 
@@ -38,6 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="worker processes, each with its own model and queue (default 1)")
     parser.add_argument("--threads", type=int, metavar="N", help="compute threads per worker (default: "
                         "$ADSM_THREADS, else the cores divided among the workers)")
+    parser.add_argument("--device", choices=DEVICES, help=DEVICE_HELP)
     parser.add_argument(
         "--log-level", default="info", choices=("critical", "error", "warning", "info", "debug")
     )
@@ -65,7 +68,7 @@ def _check_model(settings: Settings) -> str | None:
     from service.matcher import Matcher
 
     try:
-        Matcher.from_folder(settings.model_dir, threads=settings.threads).warmup()
+        Matcher.from_folder(settings.model_dir, threads=settings.threads, device=settings.device).warmup()
     except ModelError:
         raise  # a bad folder is reported like every command's (service/cli/__init__.py)
     except Exception as error:  # any warm-up failure: the same one line, never a traceback
@@ -87,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--port must be in 1..65535, got {port}")
     if args.model:
         os.environ["ADSM_MODEL_DIR"] = os.path.abspath(args.model)
+    if args.device is not None:
+        os.environ["ADSM_DEVICE"] = args.device
     if args.threads is not None:
         os.environ["ADSM_THREADS"] = str(args.threads)
     elif not os.environ.get("ADSM_THREADS") and args.workers > 1:

@@ -50,6 +50,7 @@ from pathlib import Path
 from service.cli.match_flags import add_match_flags, match_options
 from service.cli.predict import checks, outputs, sources
 from service.cli.predict.runner import Runner
+from service.cuda import DEVICE_HELP, DEVICES
 from service.features import default_model_dir, load_manifest
 from service.io import FORMATS
 from service.io.video import StereoVideo
@@ -106,6 +107,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         help="depth and points only where the disparity was measured (not filled)")
     add("--no-check", action="store_true", help="skip the swapped/unrectified pair diagnostics")
     add("--threads", type=int, metavar="N", help="ONNX Runtime threads (default: the available CPUs)")
+    add("--device", choices=DEVICES, help=DEVICE_HELP)
     limits = parser.add_argument_group(
         "limits", "the server's limits and ADSM_* variables (service/limits.py); a pair over one is refused "
         "before anything is decoded or allocated")
@@ -171,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     prepare_for = None
     if first_size is not None and os.environ.get(PREPARE_ENV, "1").strip() != "0":
         prepare_for = (*first_size, first_options)
-    matcher = Matcher.from_folder(args.model, threads=args.threads,
+    matcher = Matcher.from_folder(args.model, threads=args.threads, device=args.device,
                                   max_request_bytes=limits.max_request_bytes, prepare_for=prepare_for)
     loaded = time.perf_counter() - started
     runner = Runner(args, matcher, options, targets, calibration, limits, loaded=loaded)
