@@ -1,7 +1,7 @@
 """GPU path against the CPU path: per-stage medians of every model at Cones and KITTI size (issue 16).
 
     python -m bench gpu [--models NAME_OR_DIR ...] [--sizes cones kitti] [--repeats 3]
-                        [--towers onnx|torch] [--json OUT]
+                        [--towers onnx|torch] [--sgm-threads N ...] [--json OUT]
 
 For each model and size, in one process: the Matcher on the CPU and on the GPU (``device="cuda"``), each
 warmed up (one untimed call: the first GPU call compiles its kernels) and then timed ``--repeats`` times
@@ -13,6 +13,8 @@ D=192). ``--towers onnx`` runs the folder's ONNX towers through ONNX Runtime wit
 in PyTorch on the GPU with untrained weights: the towers' time on a GPU where onnxruntime-gpu is missing,
 its maps meaningless (the agreement column then compares two runs of the same untrained towers). Device
 memory: what the CUDA context holds right after a call (the volumes kept for the next call included).
+``--sgm-threads 32 64 128 256`` times the GPU SGM alone on a random volume of each size per threads-per-
+line choice instead (service/cuda/sgm.py), the CPU's SGM on the same volume beside it.
 """
 
 from __future__ import annotations
@@ -90,6 +92,40 @@ def run_model(folder: Path, size: str, *, repeats: int, towers_kind: str) -> dic
     return report
 
 
+def sgm_threads_sweep(size: str, choices: list[int], *, repeats: int) -> list[dict[str, Any]]:
+    """The GPU SGM's time per threads-per-line choice on a random volume of ``size``, beside the CPU's."""
+    import time
+
+    from numba import cuda
+
+    from service.cuda import sgm
+    from service.optimization import aggregate
+
+    height, width, disparities = SIZES[size]
+    volume = np.random.default_rng(0).integers(-128, 129, (height, width, disparities)).astype(np.int16)
+    device_volume, device_out = cuda.to_device(volume), cuda.device_array(volume.shape, np.int16)
+
+    def seconds(run: Any) -> float:
+        run()  # compiles or loads first
+        samples = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            run()
+            cuda.synchronize()
+            samples.append(time.perf_counter() - started)
+        return statistics.median(samples)
+
+    cpu = seconds(lambda: aggregate(volume, p1=30, p2=540))
+    rows = []
+    for threads in choices:
+        gpu = seconds(lambda threads=threads: sgm.aggregate(device_volume, p1=30, p2=540, out=device_out,
+                                                            threads=threads))
+        rows.append({"size": size, "threads": threads, "gpu_s": gpu, "cpu_s": cpu})
+        print(f"SGM at {size} {volume.shape}, {threads:>3} threads per line: {1000 * gpu:7.2f} ms "
+              f"(CPU {1000 * cpu:.1f} ms, x{cpu / gpu:.1f})")
+    return rows
+
+
 def _print(report: dict[str, Any]) -> None:
     stages = [stage for stage in report["cuda"]["median"] if stage != "total"]
     used = report["cuda"]["device_bytes"]
@@ -110,11 +146,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", nargs="+", choices=sorted(SIZES), default=["cones", "kitti"])
     parser.add_argument("--repeats", type=positive_int, default=3)
     parser.add_argument("--towers", choices=("onnx", "torch"), default="onnx")
+    parser.add_argument("--sgm-threads", nargs="+", type=int, metavar="N",
+                        help="instead of the models: the GPU SGM alone at each size with N threads per scan "
+                             "line (32, 64, 128, 256), beside the CPU's SGM")
     parser.add_argument("--json", type=Path, help="also write every figure to this JSON file")
     args = parser.parse_args(argv)
     from service.cuda import require_cuda
 
     require_cuda()
+    if args.sgm_threads:
+        rows = [row for size in args.sizes
+                for row in sgm_threads_sweep(size, args.sgm_threads, repeats=args.repeats)]
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        return 0
     reports = []
     for name in args.models:
         folder = Path(name) if Path(name).is_dir() else default_model_dir().parent / name

@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# One device call of issue 16 (docs/gpu.md): the GPU tests on the GPU, then `python -m bench gpu`.
+# One device call of issue 16 (docs/gpu.md): the GPU tests on the GPU, the SGM's threads-per-line sweep,
+# then `python -m bench gpu` on the models.
 #
-#   run (device tool): bash bench/gpu_check.sh    timeout_s 200; carry [".gpu/cones"]
+#   run (device tool): bash bench/gpu_check.sh    timeout_s 240; carry [".gpu/cones"]
 #
 # The device's checkout has no ../shared beside it: the Cones pair (the suite's Cones size) travels in an
 # ignored folder (CONES, .gpu/cones: `mkdir -p .gpu/cones && cp ../shared/data/middlebury2003-cones/*
-# .gpu/cones/`) and is put where the code looks for it. Both steps run under their own time limits
-# (TEST_S, BENCH_S seconds) so that one that overruns leaves the other its share; every output lands in
+# .gpu/cones/`) and is put where the code looks for it. Each step runs under its own time limit
+# (TEST_S, SWEEP_S, BENCH_S seconds) so that one that overruns leaves the other its share; every output lands in
 # $OUT as it is written. TOWERS: torch (the folder's architecture in PyTorch on the GPU, untrained: the
 # device has no onnxruntime-gpu) or onnx (the folder's towers on ONNX Runtime's CPU provider).
 set -uo pipefail
@@ -32,5 +33,7 @@ fi
 cat "$OUT/gpu.txt"
 timeout "${TEST_S:-90}" "$PYTHON" -m pytest -q -p no:cacheprovider tests/service/cuda/test_kernels.py \
     tests/service/cuda/test_pipeline.py 2>&1 | tee "$OUT/pytest.log" | tail -n 15
+timeout "${SWEEP_S:-30}" "$PYTHON" -m bench gpu --sgm-threads 32 64 128 256 --sizes kitti \
+    --json "$OUT/sgm-threads.json" 2>&1 | tee "$OUT/sgm-threads.log"
 timeout "${BENCH_S:-95}" "$PYTHON" -m bench gpu --towers "$TOWERS" --models adsm-fast adsm-paper \
     --sizes kitti cones --json "$OUT/gpu-$TOWERS.json" 2>&1 | tee "$OUT/bench-$TOWERS.log"

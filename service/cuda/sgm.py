@@ -27,9 +27,13 @@ _OUTSIDE = float32(1e30)
 _NO_MINIMUM = int32(2**30)
 
 
+THREAD_CHOICES = (32, 64, 128, 256)  # powers of two (the min-reduction's tree), one warp to _MAX_THREADS
+
+
 def threads_for(disparities: int) -> int:
-    """Threads of a line's block: the power of two (the min-reduction's tree) covering the disparities,
-    from one warp up to ``_MAX_THREADS`` (more disparities are looped over)."""
+    """Threads of a line's block by default: the power of two covering the disparities, from one warp up
+    to ``_MAX_THREADS`` (more disparities are looped over). Not yet tuned on a GPU: ``python -m bench gpu
+    --sgm-threads`` sweeps the choices (docs/gpu.md, "Next")."""
     threads = 32
     while threads < min(disparities, _MAX_THREADS):
         threads *= 2
@@ -114,10 +118,11 @@ def _path(cost, p1, p2, guide, edge, horizontal, forward, assign, total):  # typ
 
 
 def aggregate(cost: DeviceArray, *, p1: float, p2: float, out: DeviceArray, guide: DeviceArray | None = None,
-              edge: float = 0.0) -> None:
+              edge: float = 0.0, threads: int | None = None) -> None:
     """Sum of the 4 SGM path costs of a device int16 ``(H, W, D)`` volume into the device array ``out``
     (service.optimization.aggregate's arithmetic); ``guide``: a device float32 ``(H, W)`` grey image for
-    the image-adaptive P2 with ``edge`` > 0, else None."""
+    the image-adaptive P2 with ``edge`` > 0, else None; ``threads`` per line's block, one of
+    ``THREAD_CHOICES`` (None: :func:`threads_for`)."""
     height, width, disparities = cost.shape
     if disparities > MAX_DISPARITIES:
         raise ValueError(f"the GPU path searches at most {MAX_DISPARITIES} disparities, got {disparities}")
@@ -127,7 +132,10 @@ def aggregate(cost: DeviceArray, *, p1: float, p2: float, out: DeviceArray, guid
     if guide is None or edge <= 0:
         guide, edge = cuda.to_device(np.zeros((1, 1), np.float32)), 0.0
     whole_p1, whole_p2, edge32 = np.float32(np.rint(p1)), np.float32(np.rint(p2)), np.float32(edge)
-    threads = threads_for(disparities)
+    if threads is None:
+        threads = threads_for(disparities)
+    elif threads not in THREAD_CHOICES:
+        raise ValueError(f"threads per SGM line must be one of {THREAD_CHOICES}, got {threads}")
     # Left->right assigns the sum; the other three add to it, each launch after the one before.
     for horizontal, forward, lines in ((True, True, height), (True, False, height),
                                        (False, True, width), (False, False, width)):

@@ -33,3 +33,10 @@ def test_a_row_times_both_devices_and_compares_their_maps(monkeypatch: pytest.Mo
             report[device]["median"])
     assert report["agreement"] >= 0.99
     assert report["speedup"] > 0
+
+
+def test_the_sgm_sweep_times_each_threads_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(gpu.SIZES, "tiny", (2, 5, 40))
+    rows = gpu.sgm_threads_sweep("tiny", [32, 64], repeats=1)
+    assert [row["threads"] for row in rows] == [32, 64]
+    assert all(row["gpu_s"] > 0 and row["cpu_s"] > 0 for row in rows)

@@ -105,15 +105,18 @@ def test_sgm_equals_the_cpu_to_the_bit(p1: float, p2: float, adaptive: bool) -> 
     np.testing.assert_array_equal(out.copy_to_host(), expected)
 
 
-def test_sgm_loops_over_more_disparities_than_a_block_has_threads() -> None:
+@pytest.mark.parametrize("threads", [None, 32])
+def test_sgm_loops_over_more_disparities_than_a_block_has_threads(threads: int | None) -> None:
     from service.cuda import sgm
 
     shape = (1, 3, 260) if SIMULATED else (7, 33, 300)  # 256 threads per line at most
-    assert shape[2] > sgm.threads_for(shape[2])
+    assert shape[2] > (threads or sgm.threads_for(shape[2]))
     raw = _random_volume(np.random.default_rng(5), shape)
     out = cuda.device_array(raw.shape, np.int16)
-    sgm.aggregate(cuda.to_device(raw), p1=20, p2=300, out=out)
+    sgm.aggregate(cuda.to_device(raw), p1=20, p2=300, out=out, threads=threads)
     np.testing.assert_array_equal(out.copy_to_host(), aggregate(raw, p1=20, p2=300))
+    with pytest.raises(ValueError, match="threads per SGM line must be one of"):
+        sgm.aggregate(cuda.to_device(raw), p1=20, p2=300, out=out, threads=48)
 
 
 @pytest.mark.parametrize("min_disparity", [0, 2, -3])
