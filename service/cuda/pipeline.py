@@ -12,6 +12,7 @@ they read H x W maps only.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -23,6 +24,7 @@ from service.cost import COST_DTYPE
 from service.cuda import pixels, sgm, volume
 from service.filling import BACKGROUND_RUN, MC_CNN_FRACTION, MC_CNN_RUN, MISMATCH_FRACTION
 from service.filling.rays import _DIRECTIONS
+from service.limits import LimitError
 from service.match_options import MatchOptions
 from service.optimization import PATHS
 from service.optimization.sgm import P2_EDGE
@@ -33,12 +35,46 @@ from service.validation.inner_check import CAUSE_TOLERANCE
 assert CAUSE_TOLERANCE == 1
 
 
+class GpuMemoryError(LimitError):
+    """A call would need more GPU memory than the GPU has free; nothing was allocated (HTTP 413, like the
+    host's memory plan)."""
+
+
+def device_bytes(height: int, width: int, disparities: int, channels: int) -> int:
+    """GPU memory of one call: the two int16 volumes, both views' float32 features and the H x W maps
+    (winners of both views, the disparity, the filled disparity, the confidence: 4 bytes each; two
+    validity maps: 1 byte each)."""
+    pixels = height * width
+    return 2 * 2 * pixels * disparities + 2 * 4 * channels * pixels + (5 * 4 + 2) * pixels
+
+
+def free_device_bytes() -> float:
+    """Bytes free on the current GPU (NaN on Numba's CUDA simulator, which reports none)."""
+    free, _ = cuda.current_context().get_memory_info()
+    return float(free)
+
+
 class DeviceWorkspace:
     """The two int16 cost volumes on the GPU, kept for the next call of the same shape."""
 
     def __init__(self) -> None:
         self._shape: tuple[int, int, int] | None = None
         self._volumes: tuple[Any, Any] | None = None
+
+    def held_bytes(self) -> int:
+        """Bytes of the volumes kept now (freed or reused by the next call)."""
+        return 0 if self._shape is None else 2 * 2 * int(np.prod(self._shape))
+
+    def check(self, needed: int) -> None:
+        """:class:`GpuMemoryError` unless ``needed`` bytes fit in what is free plus what this workspace
+        holds, checked before anything is allocated: an out-of-memory error inside a kernel launch would
+        leave the service with a failed request and a confused context instead of a clear refusal."""
+        available = free_device_bytes() + self.held_bytes()
+        if math.isfinite(available) and needed > available:
+            raise GpuMemoryError(
+                f"the GPU path would need {needed / 2**20:.0f} MiB of GPU memory, {available / 2**20:.0f} "
+                "MiB are free; send smaller images or lower max_disparity"
+            )
 
     def volumes(self, shape: tuple[int, int, int]) -> tuple[Any, Any]:
         if self._volumes is None or self._shape != shape:
@@ -60,6 +96,7 @@ def match_volume(
     if disparities > sgm.MAX_DISPARITIES:
         raise ValueError(f"the GPU path searches at most {sgm.MAX_DISPARITIES} disparities, "
                          f"got {disparities}")
+    workspace.check(device_bytes(height, width, disparities, int(left_features.shape[0])))
     raw, spare = workspace.volumes(shape)
     volume.cost_volume(cuda.to_device(np.ascontiguousarray(left_features, np.float32)),
                        cuda.to_device(np.ascontiguousarray(right_features, np.float32)),

@@ -1,8 +1,9 @@
 """The Matcher on the GPU (``device="cuda"``) against the same Matcher on the CPU, end to end (issue 16).
 
 Same towers, same features: the maps may differ only where a cost cell rounded the other way
-(test_kernels.py), which on these pairs moves a few pixels at most. Runs on a GPU and, in every test
-run, on Numba's CUDA simulator (test_simulated.py), where the pair is tiny.
+(test_kernels.py), which on these pairs moves a few pixels at most; and a call over the free GPU memory is
+refused before it allocates. Runs on a GPU and, in every test run, on Numba's CUDA simulator
+(test_simulated.py), where the pair is tiny.
 """
 
 from __future__ import annotations
@@ -52,3 +53,19 @@ def test_the_gpu_path_equals_the_cpu_path(matchers: tuple[Matcher, Matcher], nam
         assert np.isclose(on_gpu.confidence, on_cpu.confidence, rtol=0, atol=1e-5).mean() >= 0.99
     # The GPU stages are timed like the CPU's, stage by stage.
     assert set(on_gpu.timings) == set(on_cpu.timings), name
+
+
+def test_a_call_over_the_free_gpu_memory_is_refused_before_anything_is_allocated(
+        matchers: tuple[Matcher, Matcher], monkeypatch: pytest.MonkeyPatch) -> None:
+    from service.cuda import pipeline
+    from service.limits import LimitError
+
+    left, right, _, _ = slanted_plane_pair(HEIGHT, WIDTH)
+    options = OPTIONS["defaults"]
+    needed = pipeline.device_bytes(HEIGHT, WIDTH, DISPARITIES, int(matchers[1].manifest["channels"]))
+    held = matchers[1]._device_workspace.held_bytes()
+    monkeypatch.setattr(pipeline, "free_device_bytes", lambda: float(needed - held - 1))
+    with pytest.raises(LimitError, match=r"would need \d+ MiB of GPU memory"):
+        matchers[1](left, right, options)
+    monkeypatch.setattr(pipeline, "free_device_bytes", lambda: float(needed - held))
+    matchers[1](left, right, options)  # exactly enough
