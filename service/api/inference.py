@@ -99,7 +99,7 @@ class InferenceService:
             jit.configure_cache()
         if self.matcher is None:
             self.matcher = Matcher.from_folder(self.settings.model_dir, threads=self.settings.threads,
-                                                   device=self.settings.device)
+                                               device=self.settings.device)
         self.metrics.model.labels(name=str(self.matcher.manifest.get("name", "unknown"))).set(1)
 
     def warm(self) -> None:
@@ -109,7 +109,8 @@ class InferenceService:
             self._loaded().warmup()
         self.ready = True
         self.metrics.ready.set(1)
-        logger.info("model warmed in %.1f s; ready", time.perf_counter() - started)
+        logger.info("model warmed in %.1f s (device %s); ready", time.perf_counter() - started,
+                    self.settings.device)
 
     def start_draining(self) -> None:
         """Turn away new stereo requests and report not ready (see service/api/draining.py)."""
