@@ -1,33 +1,37 @@
 #!/usr/bin/env bash
-# One device call of issue 11's GPU list (docs/training.md, "GPU runs of the depth-edge weight"): the
-# default model's 17-px tower from scratch with the depth-edge loss weight 4, one run alone on the machine
-# so that it gets every core's batches, sized to finish its schedule inside one call: a session is lent
-# 15 minutes of device time at most, start-up included. Each run stops after BUDGET seconds at the latest
-# (validated and checkpointed), so a call that falls short is continued by the next one (--resume auto).
+# One device call of issue 11's GPU list (docs/training.md, "The next GPU session"): by default adsm-rf11's
+# 11-px tower from scratch with the depth-edge loss weight 4 (the twenty-fourth session ran the 17-px one,
+# PLAN=k17-w4), one run alone on the machine so that it gets every core's batches, sized to finish its
+# schedule in one call and a short second one: a session is lent 15 minutes of device time at most,
+# start-up included. Each run stops after BUDGET seconds at the latest (validated and checkpointed), so a
+# call that falls short is continued by the next one (--resume auto).
 #
-#   run (device tool): bash training/edge_weight_chunk.sh    timeout_s 600; carry [".gpu"] only to resume
+#   run (device tool): bash training/edge_weight_chunk.sh    timeout_s 530; carry [".gpu/long"] to resume
 #
 # Synthetic batches are the bottleneck there (~53 ms per 128 x 256 pair on one core). Measured on the H100
 # (twenty-third session): two runs of 7 batch workers each made 18.5 steps/s of batch 8 apiece, one run of
-# 15 workers 37 steps/s, validations included; 15000 steps (120,000 crops) of one run fit the 480-s budget.
+# 15 workers 37 steps/s, validations included; the twenty-fourth session's run of 15 workers made 27-30
+# steps/s, so its 14000 steps took the 420-s budget (11346 steps) and a second call (BUDGET=150, carry
+# [".gpu/long"]) of 94 s.
 # The device's Python lacks this package's entry points (the synthetic data set is one), so the script
 # installs the checkout there first (editable, no dependencies, offline) when they are missing.
 # What comes back under $OUT: RUN/last.pt (weights and optimizer, to resume), RUN/best.pt (by the
 # trainer's 8-pair validation) where at most two runs share the call, and RUN/validation.jsonl; copy them
-# to .gpu/runs/RUN/ here, then export, tune and measure (docs/training.md).
+# to .gpu/long/RUN/ here, then export, tune and measure (docs/training.md).
 # Environment: PLAN the runs, each TOWER-wWEIGHT with TOWER k11 (11-5conv) or k17 (13-1deconv3-4conv)
-# ("k17-w4"; "k17-w4 k17-w0" was the twenty-third session's call at 5000 steps), BUDGET seconds
-# (480: the call's 600-s limit holds start-up and the last validation), DEVICE (cuda), WORKERS batch
-# processes per run (the cores left after one per run, shared), ITERATIONS (15000: the cosine schedule's
-# length, the same in every call of a plan), RUNS folder of the runs (.gpu/long), EXTRA more trainer flags
+# ("k11-w4"; "k17-w4" the twenty-fourth session's, "k17-w4 k17-w0" the twenty-third's at 5000 steps),
+# BUDGET seconds (420: a 530-s call holds start-up, the install and the last validation), DEVICE (cuda),
+# WORKERS batch processes per run (the cores left after one per run, shared), ITERATIONS (14000: the
+# cosine schedule's length, the same in every call of a plan), RUNS folder of the runs (.gpu/long), EXTRA
+# more trainer flags
 # (a CPU smoke test: DEVICE=cpu BUDGET=1 ITERATIONS=2 EXTRA="--crop 48 96 --max-disparity 24
 # --val-pairs 1"), DRY_RUN=1 prints the trainer command lines instead of running them.
 set -euo pipefail
 
-PLAN=${PLAN:-k17-w4}
-BUDGET=${BUDGET:-480}
+PLAN=${PLAN:-k11-w4}
+BUDGET=${BUDGET:-420}
 DEVICE=${DEVICE:-cuda}
-ITERATIONS=${ITERATIONS:-15000}
+ITERATIONS=${ITERATIONS:-14000}
 RUNS=${RUNS:-.gpu/long}
 EXTRA=${EXTRA:-}
 OUT=${OUT:?OUT must name the folder whose files come back}

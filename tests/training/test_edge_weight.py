@@ -107,22 +107,23 @@ def _chunk_command_lines(tmp_path, **env: str) -> list:
 
 
 def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others(tmp_path):
-    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 17-px tower at edge weight 4
-    alone for 15000 steps, sized for one device call, resumed from its own folder; PLAN names other runs
-    (the twenty-third session's call: the weight against its control, the same seed, steps and schedule)."""
+    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 11-px tower at edge weight 4
+    alone for 14000 steps, sized for one device call and a short second, resumed from its own folder; PLAN
+    names other runs (the twenty-third session's call: the weight against its control, the same seed,
+    steps and schedule)."""
     from training.train import argument_problem
 
     (alone,) = _chunk_command_lines(tmp_path, WORKERS="15")
-    assert (alone.config, alone.edge_weight, alone.out) == ("13-1deconv3-4conv", 4.0, ".gpu/long/k17-w4")
+    assert (alone.config, alone.edge_weight, alone.out) == ("11-5conv", 4.0, ".gpu/long/k11-w4")
     pair = _chunk_command_lines(tmp_path, PLAN="k17-w4 k17-w0", ITERATIONS="5000", RUNS=".gpu/runs",
                                 WORKERS="7")
     assert [(args.config, args.edge_weight) for args in pair] == [
         ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
-    for args, iterations, workers in [(alone, 15000, 15), *((args, 5000, 7) for args in pair)]:
+    for args, iterations, workers in [(alone, 14000, 15), *((args, 5000, 7) for args in pair)]:
         assert argument_problem(args) is None
         assert (args.device, args.resume, args.schedule, args.seed, args.iterations, args.workers) == (
             "cuda", "auto", "cosine", 0, iterations, workers)
-        assert args.time_budget == 480
+        assert args.time_budget == 420
     assert [args.out for args in pair] == [".gpu/runs/k17-w4", ".gpu/runs/k17-w0"]
     four = _chunk_command_lines(tmp_path, PLAN="k11-w4 k11-w0 k17-w4 k17-w0", ITERATIONS="9000")
     assert [(args.config, args.edge_weight, args.iterations) for args in four] == [
