@@ -120,8 +120,8 @@ def match_volume(
     if options.lr_check and not right_sgm:
         pixels.right_winners[pixel_blocks, pixels.THREADS](aggregated, min_disparity, right_winners)
     _done(lap, "disparity")
-    disparity = cuda.device_array((height, width), np.float32)
     if options.subpixel:
+        disparity = cuda.device_array((height, width), np.float32)
         pixels.refine[pixel_blocks, pixels.THREADS](aggregated, winners, disparity)
         _done(lap, "subpixel")
     else:
