@@ -12,7 +12,9 @@
 # (twenty-third session): two runs of 7 batch workers each made 18.5 steps/s of batch 8 apiece, one run of
 # 15 workers 37 steps/s, validations included; the twenty-fourth session's run of 15 workers made 27-30
 # steps/s, so its 14000 steps took the 420-s budget (11346 steps) and a second call (BUDGET=150, carry
-# [".gpu/long"]) of 94 s.
+# [".gpu/long"]) of 94 s. DRAWS=4 makes ~2.4x the examples per core-second but trained worse per step on
+# the CPU (docs/training.md, "Camera draws per scene"): whether it wins at equal device time is a GPU A/B
+# of its own (PLAN="k17-w0" twice, DRAWS 1 and 4, RUNS apart, WORKERS 7 each).
 # The device's Python lacks this package's entry points (the synthetic data set is one), so the script
 # installs the checkout there first (editable, no dependencies, offline) when they are missing.
 # What comes back under $OUT: RUN/last.pt (weights and optimizer, to resume), RUN/best.pt (by the
@@ -22,7 +24,8 @@
 # ("k11-w4"; "k17-w4" the twenty-fourth session's, "k17-w4 k17-w0" the twenty-third's at 5000 steps),
 # BUDGET seconds (420: a 530-s call holds start-up, the install and the last validation), DEVICE (cuda),
 # WORKERS batch processes per run (the cores left after one per run, shared), ITERATIONS (14000: the
-# cosine schedule's length, the same in every call of a plan), RUNS folder of the runs (.gpu/long), EXTRA
+# cosine schedule's length, the same in every call of a plan), DRAWS camera draws per rendered scene
+# (--camera-draws; 1: every example its own scene), RUNS folder of the runs (.gpu/long), EXTRA
 # more trainer flags
 # (a CPU smoke test: DEVICE=cpu BUDGET=1 ITERATIONS=2 EXTRA="--crop 48 96 --max-disparity 24
 # --val-pairs 1"), DRY_RUN=1 prints the trainer command lines instead of running them.
@@ -32,6 +35,7 @@ PLAN=${PLAN:-k11-w4}
 BUDGET=${BUDGET:-420}
 DEVICE=${DEVICE:-cuda}
 ITERATIONS=${ITERATIONS:-14000}
+DRAWS=${DRAWS:-1}
 RUNS=${RUNS:-.gpu/long}
 EXTRA=${EXTRA:-}
 OUT=${OUT:?OUT must name the folder whose files come back}
@@ -59,8 +63,8 @@ for run in "${plan[@]}"; do
     # shellcheck disable=SC2206  # EXTRA is a list of flags
     command=("$PYTHON" -m training.train --config "${CONFIG[$tower]}" --channels 32 --shared
              --edge-weight "$weight" --device "$DEVICE" --workers "$WORKERS" --batch-size 8
-             --iterations "$ITERATIONS" --schedule cosine --lr 1e-3 --seed 0 --val-every 1000
-             --val-pairs 8 --cones '' --time-budget "$BUDGET" --resume auto --out "$RUNS/$run" $EXTRA)
+             --iterations "$ITERATIONS" --camera-draws "$DRAWS" --schedule cosine --lr 1e-3 --seed 0
+             --val-every 1000 --val-pairs 8 --cones '' --time-budget "$BUDGET" --resume auto --out "$RUNS/$run" $EXTRA)
     if [[ -n ${DRY_RUN:-} ]]; then
         printf '%q ' "${command[@]}"; echo
         continue

@@ -89,6 +89,9 @@ def test_bench_reports_bad_arguments_and_files_in_one_line(capsys):
     with pytest.raises(SystemExit) as exit_code:
         bench_main(["tower_scale", "--scales", "1", "9"])
     assert exit_code.value.code == 2 and "every scale must be in 1..4" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_code:
+        bench_main(["synthetic", "--camera-draws", "3"])
+    assert exit_code.value.code == 2 and "each K must divide the batch of 8" in capsys.readouterr().err
 
 
 def test_int8_calibration_refuses_tiny_images_and_a_failure_leaves_no_half_folder(tmp_path, monkeypatch):

@@ -108,9 +108,9 @@ def _chunk_command_lines(tmp_path, **env: str) -> list:
 
 def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others(tmp_path):
     """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 11-px tower at edge weight 4
-    alone for 14000 steps, sized for one device call and a short second, resumed from its own folder; PLAN
-    names other runs (the twenty-third session's call: the weight against its control, the same seed,
-    steps and schedule)."""
+    alone for 14000 steps, every example its own scene, sized for one device call and a short second,
+    resumed from its own folder; PLAN names other runs (the twenty-third session's call: the weight
+    against its control, the same seed, steps and schedule)."""
     from training.train import argument_problem
 
     (alone,) = _chunk_command_lines(tmp_path, WORKERS="15")
@@ -129,6 +129,9 @@ def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others
     assert [(args.config, args.edge_weight, args.iterations) for args in four] == [
         ("11-5conv", 4.0, 9000), ("11-5conv", 0.0, 9000), ("13-1deconv3-4conv", 4.0, 9000),
         ("13-1deconv3-4conv", 0.0, 9000)]
+    assert alone.camera_draws == 1 and all(args.camera_draws == 1 for args in four)
+    (drawn,) = _chunk_command_lines(tmp_path, DRAWS="4")  # the equal-time A/B's other arm
+    assert drawn.camera_draws == 4 and argument_problem(drawn) is None
 
 
 def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):

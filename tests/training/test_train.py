@@ -336,3 +336,54 @@ def test_clean_views_render_that_share_of_the_same_scenes_without_camera_effects
         if not clean[-1]:
             np.testing.assert_array_equal(a.left, b.left)
     assert 2 <= sum(clean) <= 12  # a share of 0.3 of 20 draws
+
+
+def test_camera_draws_share_one_rendered_scene_among_consecutive_examples() -> None:
+    spec = BatchSpec(height=48, width=96, max_disparity=24)
+    one = TrainingData("synthetic", seed=3, spec=spec)
+    four = TrainingData("synthetic", seed=3, spec=dataclasses.replace(spec, camera_draws=4))
+    scene = [four.sample(index)[0] for index in range(8, 12)]  # scene 2 of seed 3
+    # The first draw is exactly the pair of the scene's seed (example 2 of a run with one draw each) ...
+    reference = one.sample(2)[0]
+    for field in ("left", "right", "disparity", "nonoccluded"):
+        np.testing.assert_array_equal(getattr(scene[0], field), getattr(reference, field))
+    # ... the others the same scene and truth through other cameras, each its own.
+    for other in scene[1:]:
+        np.testing.assert_array_equal(other.disparity, reference.disparity)
+        assert np.mean(other.left != reference.left) > 0.5 and np.mean(other.right != reference.right) > 0.5
+    assert not np.array_equal(scene[1].left, scene[2].left)
+    # Examples stay a pure function of their index: any order, any process, the same pixels (resume, DDP,
+    # workers), and the crop and augmentation draws stay the example's own.
+    again = TrainingData("synthetic", seed=3, spec=dataclasses.replace(spec, camera_draws=4))
+    (late, rng_late), (early, _) = again.sample(10), again.sample(8)
+    np.testing.assert_array_equal(late.left, scene[2].left)
+    np.testing.assert_array_equal(early.left, scene[0].left)
+    assert rng_late.random() == one.sample(10)[1].random()
+    assert not np.array_equal(four.sample(12)[0].disparity, reference.disparity)  # the next scene
+
+
+def test_camera_draws_must_be_whole_and_divide_a_steps_examples(tmp_path, capsys) -> None:
+    for bad in (0, True, 1.5):
+        with pytest.raises(ValueError, match="camera draws must be a whole number >= 1"):
+            BatchSpec(camera_draws=bad)
+    with pytest.raises(ValueError, match="--camera-draws 3 must divide the 2 examples of a step"):
+        train(TrainConfig(**TINY, iterations=1, camera_draws=3, out=str(tmp_path / "run")))
+    assert not (tmp_path / "run").exists()
+    assert main(["--camera-draws", "0"]) == 2
+    assert "--camera-draws must be >= 1, got 0" in capsys.readouterr().err
+
+
+def test_camera_draws_are_recorded_with_the_training_data(tmp_path) -> None:
+    out = tmp_path / "run"
+    train(TrainConfig(**TINY, iterations=1, val_every=1, camera_draws=2, out=str(out)))
+    assert "2 camera draws per scene" in load_checkpoint(out / "last.pt").training["data"]
+
+
+def test_bench_synthetic_times_training_examples_per_camera_draws(tmp_path) -> None:
+    from bench.synthetic import main as bench_synthetic
+
+    report = tmp_path / "synthetic.json"
+    assert bench_synthetic(["--size", "48", "96", "--max-disparity", "24", "--pairs", "1",
+                            "--camera-draws", "1", "4", "--json", str(report)]) == 0
+    examples = json.loads(report.read_text())["training_ms_per_example"]
+    assert set(examples) == {"1", "4"} and all(ms > 0 for ms in examples.values())

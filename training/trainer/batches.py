@@ -2,9 +2,12 @@
 
 Example ``i`` of a run draws everything from ``numpy.random.default_rng([seed, i])``: the synthetic scene
 (generator seed ``seed * SEED_STRIDE + i``, always below the validation seeds), or which pair and window of
-a dataset on disk, and the augmentation. Step ``s`` of a run with ``world`` processes and ``batch``
-examples per process uses examples ``(s * world + rank) * batch + k``: every process sees different data,
-and a resumed run sees exactly the examples the uninterrupted run would have.
+a dataset on disk, and the augmentation. With ``camera_draws`` K > 1, examples ``K j .. K j + K - 1``
+share scene ``seed * SEED_STRIDE + j``, rendered once: the first is that seed's pair, the others the same
+scene taken by cameras drawn from ``default_rng([scene seed, CAMERA_STREAM, k])``. Step ``s`` of a run
+with ``world`` processes and ``batch`` examples per process uses examples ``(s * world + rank) * batch + k``:
+every process sees different data, and a resumed run sees exactly the examples the uninterrupted run would
+have.
 """
 
 from __future__ import annotations
@@ -26,8 +29,10 @@ from training.data.synthetic import (
     Rectification,
     SyntheticConfig,
     check_share,
-    generate,
+    photograph,
+    render_scene,
 )
+from training.data.synthetic.scene import Rendering
 
 SEED_STRIDE = 10_000_000            # examples per run seed; seeds 0..99 stay below VALIDATION_SEED
 AUGMENTATIONS = ("none", "photometric")
@@ -35,6 +40,8 @@ AUGMENTATIONS = ("none", "photometric")
 # "none" beat "photometric" on the synthetic validation split (bad-2 28.90 vs 29.26 %) and on Cones
 # (15.69 vs 16.47 %): the generator's own camera effects are enough at these budgets.
 DEFAULT_AUGMENTATION = "none"
+# The stream of a scene's extra camera draws (generator.py uses [seed, 1] and [seed, 2] for its levers).
+CAMERA_STREAM = 3
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -53,6 +60,9 @@ class BatchSpec:
     clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
     curved_surfaces: float = 0.0   # synthetic: share of objects that bulge towards the cameras, shaded
     fine_textures: float = 0.0     # synthetic: share of surfaces painted at twice the spatial frequency
+    # synthetic: examples per rendered scene, each through freshly drawn cameras. The scene and its
+    # rendering are ~85 % of a pair's cost and bound a GPU run's steps per second (docs/training.md).
+    camera_draws: int = 1
 
     def __post_init__(self) -> None:
         if self.augmentation not in AUGMENTATIONS:
@@ -62,6 +72,9 @@ class BatchSpec:
         check_share("clean views", self.clean_views)
         check_share("curved surfaces", self.curved_surfaces)
         check_share("fine textures", self.fine_textures)
+        if isinstance(self.camera_draws, bool) or not isinstance(self.camera_draws, int) \
+                or self.camera_draws < 1:
+            raise ValueError(f"camera draws must be a whole number >= 1, got {self.camera_draws!r}")
         if min(self.height, self.width) < 40:
             raise ValueError(f"crops must be at least 40 x 40 (the receptive field), got "
                              f"{self.height} x {self.width}")
@@ -84,6 +97,9 @@ class TrainingData:
             rectification=Rectification() if spec.rectification_error else None,
             curved_surfaces=spec.curved_surfaces, fine_textures=spec.fine_textures)
         self.clean = dataclasses.replace(self.synthetic, photometric=None)
+        # The last scene rendered, with its stream's state where the scene's draws end: the examples that
+        # share a scene are consecutive, so one entry serves a whole batch's.
+        self._scene: tuple[int, Rendering, dict] | None = None
 
     @property
     def trained_range(self) -> list[int]:
@@ -94,8 +110,22 @@ class TrainingData:
         """Pair of example ``index`` and the generator that cuts and augments it."""
         rng = np.random.default_rng([self.seed, index])
         if self.pairs is None:
-            return generate(self.seed * SEED_STRIDE + index, self._camera(index)), rng
+            return self._synthetic(index), rng
         return self.pairs[int(rng.integers(len(self.pairs)))], rng
+
+    def _synthetic(self, index: int) -> StereoSample:
+        scene, draw = divmod(index, self.spec.camera_draws)
+        seed = self.seed * SEED_STRIDE + scene
+        if self._scene is None or self._scene[0] != seed:
+            rendering, camera = render_scene(seed, self.synthetic)
+            self._scene = (seed, rendering, camera.bit_generator.state)
+        _, rendering, state = self._scene
+        if draw == 0:  # the seed's own cameras: with one draw per scene, exactly generate(seed)
+            camera = np.random.Generator(np.random.PCG64())
+            camera.bit_generator.state = state
+        else:
+            camera = np.random.default_rng([seed, CAMERA_STREAM, draw])
+        return photograph(rendering, camera, self._camera(index), name=f"synthetic-{seed}")
 
     def _camera(self, index: int) -> SyntheticConfig:
         """The generator config of synthetic example ``index``: with probability ``clean_views`` the same

@@ -62,6 +62,7 @@ class TrainConfig:
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
     curved_surfaces: float = 0.0        # synthetic: share of objects that bulge towards the cameras
     fine_textures: float = 0.0          # synthetic: share of surfaces painted at twice the frequency
+    camera_draws: int = 1               # synthetic: examples per rendered scene (fresh cameras each)
     val_every: int = 200
     val_pairs: int = 8
     cones: str = CONES_SPEC             # evaluation only; "" skips it
@@ -97,14 +98,18 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     if config.mode == "patch" and config.batch_size % 4:
         raise ValueError("patch mode takes patch pairs in groups of 4 per batch (batch size % 4 == 0)")
     per_example = config.batch_size // 4 if config.mode == "patch" else 1
+    examples_per_step = 4 if config.mode == "patch" else config.batch_size
+    if examples_per_step % config.camera_draws:
+        raise ValueError(f"--camera-draws {config.camera_draws} must divide the {examples_per_step} "
+                         "examples of a step (the batch size; 4 in patch mode), so that a scene's "
+                         "examples share a batch and it is rendered once")
     spec = BatchSpec(height=config.crop[0], width=config.crop[1], max_disparity=config.max_disparity,
                      patches_per_pair=per_example, augmentation=config.augmentation,
                      rectification_error=config.rectification_error, vignetting=config.vignetting,
                      clean_views=config.clean_views, curved_surfaces=config.curved_surfaces,
-                     fine_textures=config.fine_textures,
+                     fine_textures=config.fine_textures, camera_draws=config.camera_draws,
                      patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)
-    examples_per_step = 4 if config.mode == "patch" else config.batch_size
 
     device = torch.device(config.device)
     if device.type == "cuda" and not torch.cuda.is_available():
@@ -255,9 +260,11 @@ def _describe_device(config: TrainConfig) -> str:
 def _describe_data(config: TrainConfig, data: TrainingData) -> str:
     if config.data != "synthetic":
         return config.data
+    draws = f", {config.camera_draws} camera draws per scene" if config.camera_draws > 1 else ""
     return (f"synthetic (training.data.synthetic.generate, seeds {config.seed * 10_000_000}+, "
             f"{config.crop[0]}x{config.crop[1]}, disparities 0..{config.max_disparity}, "
-            f"augmentation {config.augmentation}); validation: synthetic split, {config.val_pairs} pairs")
+            f"augmentation {config.augmentation}{draws}); validation: synthetic split, "
+            f"{config.val_pairs} pairs")
 
 
 def _truncate_history(history: Path, step: int) -> None:

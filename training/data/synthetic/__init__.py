@@ -24,7 +24,9 @@ from .generator import (
     open_curved_validation_split,
     open_fine_validation_split,
     open_validation_split,
+    photograph,
     random_scene,
+    render_scene,
     validation_split,
 )
 from .photometric import Photometric, Rectification, apply_camera
@@ -33,5 +35,5 @@ __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "
            "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
            "open_clean_validation_split", "open_curved_validation_split", "open_fine_validation_split",
-           "open_validation_split",
-           "random_scene", "validation_split"]
+           "open_validation_split", "photograph",
+           "random_scene", "render_scene", "validation_split"]

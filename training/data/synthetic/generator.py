@@ -29,6 +29,7 @@ from .scene import (
     Layer,
     Plane,
     Polygon,
+    Rendering,
     Segment,
     Shaded,
     render,
@@ -72,6 +73,15 @@ VALIDATION_CONFIG = SyntheticConfig(height=256, width=512, max_disparity=128)
 
 def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSample:
     """The synthetic pair of ``seed``: same seed and config, same pixels."""
+    rendering, camera = render_scene(seed, config)
+    return photograph(rendering, camera, config, name=f"synthetic-{seed}")
+
+
+def render_scene(seed: int, config: SyntheticConfig = SyntheticConfig()
+                 ) -> tuple[Rendering, np.random.Generator]:
+    """The exact two-view rendering of ``seed``'s scene, and the seed's stream where the scene's draws end:
+    ``photograph`` with that stream gives ``generate(seed, config)``; with another, the same scene taken by
+    other cameras (most of a pair's cost is the scene and its rendering, not the cameras)."""
     rng = np.random.default_rng(seed)
     # The curved surfaces and the fine textures draw from streams of their own, so that a scene keeps
     # every other layer, texture and camera with a lever on (and draws nothing more with it off).
@@ -81,13 +91,18 @@ def generate(seed: int, config: SyntheticConfig = SyntheticConfig()) -> StereoSa
                           max_disparity=config.max_disparity, photo_probability=config.photo_probability,
                           curved_surfaces=config.curved_surfaces, shapes=shapes,
                           fine_textures=config.fine_textures, detail=detail)
-    rendering = render(layers, height=config.height, width=config.width)
-    left = apply_camera(rendering.left, rng, config.photometric)
+    return render(layers, height=config.height, width=config.width), rng
+
+
+def photograph(rendering: Rendering, camera: np.random.Generator, config: SyntheticConfig, *,
+               name: str) -> StereoSample:
+    """Both views of ``rendering`` through the cameras of ``config`` (effects drawn from ``camera``)."""
+    left = apply_camera(rendering.left, camera, config.photometric)
     right = rendering.right
     if config.rectification is not None:
-        right = rectify_imperfectly(right, rng, config.rectification)
-    right = apply_camera(right, rng, config.photometric)
-    return StereoSample(name=f"synthetic-{seed}", left=left, right=right, disparity=rendering.disparity,
+        right = rectify_imperfectly(right, camera, config.rectification)
+    right = apply_camera(right, camera, config.photometric)
+    return StereoSample(name=name, left=left, right=right, disparity=rendering.disparity,
                         nonoccluded=~rendering.occluded, max_disparity=config.max_disparity)
 
 
