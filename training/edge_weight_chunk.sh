@@ -64,7 +64,8 @@ for run in "${plan[@]}"; do
     command=("$PYTHON" -m training.train --config "${CONFIG[$tower]}" --channels 32 --shared
              --edge-weight "$weight" --device "$DEVICE" --workers "$WORKERS" --batch-size 8
              --iterations "$ITERATIONS" --camera-draws "$DRAWS" --schedule cosine --lr 1e-3 --seed 0
-             --val-every 1000 --val-pairs 8 --cones '' --time-budget "$BUDGET" --resume auto --out "$RUNS/$run" $EXTRA)
+             --val-every 1000 --val-pairs 8 --cones '' --time-budget "$BUDGET" --resume auto
+             --out "$RUNS/$run" $EXTRA)
     if [[ -n ${DRY_RUN:-} ]]; then
         printf '%q ' "${command[@]}"; echo
         continue

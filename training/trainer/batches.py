@@ -4,7 +4,7 @@ Example ``i`` of a run draws everything from ``numpy.random.default_rng([seed, i
 (generator seed ``seed * SEED_STRIDE + i``, always below the validation seeds), or which pair and window of
 a dataset on disk, and the augmentation. With ``camera_draws`` K > 1, examples ``K j .. K j + K - 1``
 share scene ``seed * SEED_STRIDE + j``, rendered once: the first is that seed's pair, the others the same
-scene taken by cameras drawn from ``default_rng([scene seed, CAMERA_STREAM, k])``. Step ``s`` of a run
+scene taken by the cameras of ``other_cameras(scene seed, k)``. Step ``s`` of a run
 with ``world`` processes and ``batch`` examples per process uses examples ``(s * world + rank) * batch + k``:
 every process sees different data, and a resumed run sees exactly the examples the uninterrupted run would
 have.
@@ -29,6 +29,7 @@ from training.data.synthetic import (
     Rectification,
     SyntheticConfig,
     check_share,
+    other_cameras,
     photograph,
     render_scene,
 )
@@ -40,8 +41,6 @@ AUGMENTATIONS = ("none", "photometric")
 # "none" beat "photometric" on the synthetic validation split (bad-2 28.90 vs 29.26 %) and on Cones
 # (15.69 vs 16.47 %): the generator's own camera effects are enough at these budgets.
 DEFAULT_AUGMENTATION = "none"
-# The stream of a scene's extra camera draws (generator.py uses [seed, 1] and [seed, 2] for its levers).
-CAMERA_STREAM = 3
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -124,7 +123,7 @@ class TrainingData:
             camera = np.random.Generator(np.random.PCG64())
             camera.bit_generator.state = state
         else:
-            camera = np.random.default_rng([seed, CAMERA_STREAM, draw])
+            camera = other_cameras(seed, draw)
         return photograph(rendering, camera, self._camera(index), name=f"synthetic-{seed}")
 
     def _camera(self, index: int) -> SyntheticConfig:

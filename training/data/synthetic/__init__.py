@@ -24,6 +24,7 @@ from .generator import (
     open_curved_validation_split,
     open_fine_validation_split,
     open_validation_split,
+    other_cameras,
     photograph,
     random_scene,
     render_scene,
@@ -35,5 +36,5 @@ __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "
            "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
            "open_clean_validation_split", "open_curved_validation_split", "open_fine_validation_split",
-           "open_validation_split", "photograph",
+           "open_validation_split", "other_cameras", "photograph",
            "random_scene", "render_scene", "validation_split"]

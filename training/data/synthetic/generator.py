@@ -94,6 +94,12 @@ def render_scene(seed: int, config: SyntheticConfig = SyntheticConfig()
     return render(layers, height=config.height, width=config.width), rng
 
 
+def other_cameras(seed: int, draw: int) -> np.random.Generator:
+    """The stream of the ``draw``-th other cameras (``draw`` >= 1) that photograph ``seed``'s scene; its
+    own cameras continue ``render_scene``'s stream, and [seed, 1] and [seed, 2] are the levers'."""
+    return np.random.default_rng([seed, 3, draw])
+
+
 def photograph(rendering: Rendering, camera: np.random.Generator, config: SyntheticConfig, *,
                name: str) -> StereoSample:
     """Both views of ``rendering`` through the cameras of ``config`` (effects drawn from ``camera``)."""
