@@ -29,7 +29,7 @@ from training.evaluation import runtime_metrics
 from training.model_folder import load_start
 from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
-from training.trainer.batches import DEFAULT_AUGMENTATION, BatchSpec, TrainingData
+from training.trainer.batches import DEFAULT_AUGMENTATION, SEED_STRIDE, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.prefetch import StepBatches, step_batches
 from training.trainer.warm_start import warm_start
@@ -261,7 +261,7 @@ def _describe_data(config: TrainConfig, data: TrainingData) -> str:
     if config.data != "synthetic":
         return config.data
     draws = f", {config.camera_draws} camera draws per scene" if config.camera_draws > 1 else ""
-    return (f"synthetic (training.data.synthetic.generate, seeds {config.seed * 10_000_000}+, "
+    return (f"synthetic (training.data.synthetic.generate, seeds {config.seed * SEED_STRIDE}+, "
             f"{config.crop[0]}x{config.crop[1]}, disparities 0..{config.max_disparity}, "
             f"augmentation {config.augmentation}{draws}); validation: synthetic split, "
             f"{config.val_pairs} pairs")
