@@ -42,12 +42,12 @@ REFERENCE_KERNEL = 11
 
 def tower_flops(tower: FeatureTower, height: int, width: int) -> int:
     """2 x multiply-adds of every conv the exported graph runs for one height x width image."""
-    left, right, top, bottom = same_padding(tower.patch)
+    left, right, top, bottom = same_padding(tower.patch_shape)
     h, w, total = height + top + bottom, width + left + right, 0
     for conv in fold_tower(tower):
-        c_out, c_in, k, _ = conv.weight.shape
-        h, w = h + 2 * conv.padding - k + 1, w + 2 * conv.padding - k + 1
-        total += 2 * h * w * c_out * c_in * k * k
+        c_out, c_in, kh, kw = conv.weight.shape
+        h, w = h + 2 * conv.padding[0] - kh + 1, w + 2 * conv.padding[1] - kw + 1
+        total += 2 * h * w * c_out * c_in * kh * kw
     return total
 
 

@@ -59,11 +59,12 @@ SUPPORTED_OPSETS = range(13, 22)
 
 @dataclasses.dataclass(frozen=True)
 class FoldedConv:
-    """One deploy-time conv: weight [Cout, Cin, k, k], optional bias, zero padding, ReLU after it."""
+    """One deploy-time conv: weight [Cout, Cin, kh, kw], optional bias, zero padding (rows, columns) on
+    each side, ReLU after it."""
 
     weight: np.ndarray
     bias: np.ndarray | None
-    padding: int
+    padding: tuple[int, int]
     relu: bool
 
 
@@ -75,11 +76,11 @@ def fold_tower(tower: FeatureTower) -> list[FoldedConv]:
         if not isinstance(module, nn.Conv2d | nn.ConvTranspose2d):
             continue
         weight = module.weight.detach().double()
-        padding = 0
+        padding = (0, 0)
         if isinstance(module, nn.ConvTranspose2d):
             # A stride-1, unpadded transposed conv is the full convolution with the flipped kernel.
             weight = weight.transpose(0, 1).flip(2, 3)
-            padding = module.kernel_size[0] - 1
+            padding = (module.kernel_size[0] - 1, module.kernel_size[1] - 1)
         bias = None
         following = modules[index + 1:index + 3]
         if following and isinstance(following[0], nn.BatchNorm2d):
@@ -97,7 +98,7 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
     if opset not in SUPPORTED_OPSETS:
         first, last = SUPPORTED_OPSETS.start, SUPPORTED_OPSETS.stop - 1
         raise ValueError(f"opset {opset} not supported (choose {first}..{last})")
-    left, right, top, bottom = same_padding(tower.patch)
+    left, right, top, bottom = same_padding(tower.patch_shape)
     pads = np.array([0, 0, top, left, 0, 0, bottom, right], np.int64)
     initializers = [numpy_helper.from_array(pads, "pads"),
                     numpy_helper.from_array(np.array([NORM_EPS], np.float32), "norm_eps")]
@@ -112,7 +113,8 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
             initializers.append(numpy_helper.from_array(conv.bias, f"b{index}"))
             inputs.append(f"b{index}")
         output = f"conv{index}"
-        nodes.append(helper.make_node("Conv", inputs, [output], pads=[conv.padding] * 4, name=f"conv{index}"))
+        nodes.append(helper.make_node("Conv", inputs, [output], pads=[*conv.padding, *conv.padding],
+                                      name=f"conv{index}"))
         if conv.relu:
             nodes.append(helper.make_node("Relu", [output], [f"relu{index}"], name=f"relu{index}"))
             output = f"relu{index}"

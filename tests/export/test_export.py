@@ -64,12 +64,13 @@ def test_stride1_transposed_conv_equals_full_conv_with_flipped_kernel() -> None:
     with torch.no_grad():
         torch.testing.assert_close(F.conv2d(image, flipped, padding=4), deconv(image))
     folded = fold_tower(build_tower_pair("37-1deconv5-4conv", channels=4).left)
-    assert folded[0].padding == 4 and folded[0].weight.shape == (4, 3, 5, 5)
+    assert folded[0].padding == (4, 4) and folded[0].weight.shape == (4, 3, 5, 5)
     assert [layer.relu for layer in folded] == [False, True, True, True, False]
     assert folded[-1].bias is None and all(layer.bias is not None for layer in folded[:-1])
 
 
-@pytest.mark.parametrize("name", ["37-1deconv5-4conv", "37-3deconv-6conv", "29-1deconv2-4conv", "45-8conv"])
+@pytest.mark.parametrize("name", ["37-1deconv5-4conv", "37-3deconv-6conv", "29-1deconv2-4conv", "45-8conv",
+                                  "21x5-1deconv3-4conv"])
 @pytest.mark.parametrize("opset", [13, 17, 18])
 def test_onnx_runtime_matches_pytorch_eval_at_odd_shapes(name: str, opset: int) -> None:
     pair = _with_statistics(build_tower_pair(name, channels=6))
@@ -86,8 +87,8 @@ def test_onnx_runtime_matches_pytorch_eval_at_odd_shapes(name: str, opset: int) 
 
 
 def _export(tmp_path: Path, *, channels: int = 4, shared: bool = False, training: dict | None = PROVENANCE,
-            standardize_window: int = 0, **overrides) -> Path:
-    pair = _with_statistics(build_tower_pair("29-1deconv3-4conv", channels=channels, shared=shared,
+            standardize_window: int = 0, config: str = "29-1deconv3-4conv", **overrides) -> Path:
+    pair = _with_statistics(build_tower_pair(config, channels=channels, shared=shared,
                                              standardize_window=standardize_window))
     checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=training,
                                  metrics={"synthetic": {"epe": 3.5}}, deploy={"trained_range": [0, 96]})
@@ -235,6 +236,16 @@ def test_input_standardization_exports_equal_and_the_runtime_measures_its_recept
     assert "standardised over 5x5 windows" in manifest["description"]
     matcher = Matcher.from_folder(folder, threads=1)
     matcher.warmup()  # measures the towers' reach against receptive_field (service.features.towers)
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
+    assert matcher(left, np.roll(left, -5, axis=1)).disparity.shape == (40, 64)
+
+
+def test_an_anisotropic_folder_declares_its_larger_side_and_runs(tmp_path: Path) -> None:
+    folder = _export(tmp_path, channels=4, shared=True, config="21x5-1deconv3-4conv")
+    assert load_manifest(folder)["receptive_field"] == 25  # the tiles' square halo covers 25 x 9
+    matcher = Matcher.from_folder(folder, threads=1)
+    matcher.warmup()  # the measured reach (rows: 12 px) must equal the manifest's half field
     rng = np.random.default_rng(0)
     left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
     assert matcher(left, np.roll(left, -5, axis=1)).disparity.shape == (40, 64)

@@ -9,12 +9,14 @@ from torch import nn
 from training.networks import (
     CONFIGS,
     FeatureTower,
+    TowerConfig,
     build_tower_pair,
     dense_features,
     get_config,
     list_configs,
     split_kernels,
 )
+from training.trainer.objective import Objective
 
 pytestmark = pytest.mark.torch
 
@@ -49,7 +51,8 @@ def test_every_table_row_is_a_named_config() -> None:
                 "37-1deconv3-4conv", "37-2deconv-6conv", "37-3deconv-6conv"}
     table7 = {f"{patch}-{row}" for patch, rows in TABLE7.items() for row in rows}
     extension = {name for name, config in CONFIGS.items() if config.table == "project extension"}
-    assert extension == {"9-4conv", "11-5conv", "9-1deconv3-4conv", "13-1deconv3-4conv", "7-5conv", "5-5conv"}
+    assert extension == {"9-4conv", "11-5conv", "9-1deconv3-4conv", "13-1deconv3-4conv", "7-5conv", "5-5conv",
+                         "21x5-1deconv3-4conv"}
     # The receptive-field ablation rows differ from 11-5conv in their field only.
     for name, field in (("11-5conv", 11), ("7-5conv", 7), ("5-5conv", 5)):
         assert get_config(name).receptive_field == field and len(get_config(name).conv_kernels) == 5
@@ -69,10 +72,10 @@ def test_impossible_rows_carry_a_documented_fix() -> None:
 def test_patch_maps_to_one_pixel_and_strip_to_201_candidates(name: str) -> None:
     config = get_config(name)
     tower = FeatureTower(config, channels=2).eval()
-    patch = config.patch
+    height, width = config.patch_shape
     with torch.no_grad():
-        assert tower(torch.rand(1, 3, patch, patch)).shape == (1, 2, 1, 1)
-        assert tower(torch.rand(1, 3, patch, patch + 200)).shape == (1, 2, 1, 201)
+        assert tower(torch.rand(1, 3, height, width)).shape == (1, 2, 1, 1)
+        assert tower(torch.rand(1, 3, height, width + 200)).shape == (1, 2, 1, 201)
 
 
 def test_paper_kernel_rule_reproduces_the_printed_even_split_rows() -> None:
@@ -149,6 +152,31 @@ def test_dense_features_keep_size_and_equal_the_valid_tower_on_the_receptive_fie
             p = tower.patch // 2
             alone = tower(image[:, :, y - p:y + p + 1, x - p:x + p + 1])[:, :, 0, 0]
             assert (alone - dense[:, :, y, x]).abs().max() > 1e-4
+
+
+def test_an_anisotropic_tower_sees_a_tall_narrow_window() -> None:
+    config = get_config("21x5-1deconv3-4conv")
+    assert config.kernel_shapes == ((3, 3), (7, 3), (7, 3), (6, 2), (6, 2))
+    assert config.patch_shape == (21, 5) and config.receptive_field_shape == (25, 9)
+    assert config.receptive_field == 25  # the square halo the service's tiles need
+    assert config.conv_weight_count(32) == 3 * 9 * 32 + (21 + 21 + 12 + 12) * 32 * 32
+    # One changed pixel moves the dense features of exactly the 25 x 9 window around it.
+    torch.manual_seed(0)
+    tower = FeatureTower(config, channels=3).eval()
+    image = torch.rand(1, 3, 41, 31)
+    changed = image.clone()
+    changed[0, :, 20, 15] += 1
+    with torch.no_grad():
+        moved = (dense_features(tower, changed) - dense_features(tower, image)).abs().amax(dim=1)[0] > 0
+    rows, columns = torch.nonzero(moved, as_tuple=True)
+    assert (rows.min(), rows.max(), columns.min(), columns.max()) == (8, 32, 11, 19)
+    with pytest.raises(ValueError, match="smaller than the 21x5 patch"):
+        tower(torch.rand(1, 3, 21, 4))
+    with pytest.raises(ValueError, match="patch mode cuts square patches"):
+        Objective(build_tower_pair(config.name, channels=2), mode="patch")
+    with pytest.raises(ValueError, match="3 kernel widths for 2 layers"):
+        TowerConfig(name="x", patch=5, deconv_kernels=(), conv_kernels=(3, 3), kernel_widths=(3, 3, 3),
+                    deconv_relu=False, table="test")
 
 
 def test_bad_names_and_inputs_are_refused() -> None:

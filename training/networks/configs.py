@@ -1,7 +1,8 @@
 """Named tower configurations of the paper (Tables 1, 2 and 7) and the registry that lists them.
 
 A name reads like the paper's row: ``<patch>-<deconvs>-<convs>``, e.g. ``37-1deconv5-4conv`` is the left
-patch size 37 with one 5x5 transposed conv and four convs. Table 1 and 2 rows keep the printed kernel
+patch size 37 with one 5x5 transposed conv and four convs; the project's anisotropic rows name the patch
+``<height>x<width>`` (their kernels are taller than wide). Table 1 and 2 rows keep the printed kernel
 sizes; rows that cannot be built as printed carry a ``fix`` note (see docs/networks.md). Table 7 gives no
 kernel sizes, so they follow :func:`split_kernels`, the rule that reproduces every 3Conv/4Conv row of
 Tables 1 and 2 exactly.
@@ -16,44 +17,74 @@ DEFAULT_CONFIG = "37-1deconv5-4conv"  # the paper's best row (Table 6) and its r
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class TowerConfig:
-    """Geometry of one feature tower: stride-1 transposed convs (no padding), then valid convs."""
+    """Geometry of one feature tower: stride-1 transposed convs (no padding), then valid convs.
+
+    Kernels are square unless ``kernel_widths`` gives their widths (the project's anisotropic towers):
+    ``deconv_kernels`` and ``conv_kernels`` are then the heights, and ``patch`` the patch's height.
+    """
 
     name: str
-    patch: int                    # side of the left training patch; the tower maps it to 1x1
+    patch: int                    # side (height) of the left training patch; the tower maps it to 1x1
     deconv_kernels: tuple[int, ...]
     conv_kernels: tuple[int, ...]
     deconv_relu: bool             # Table 2: ReLU after a deconv only in 3Deconv&6Conv
     table: str                    # where the row comes from in the paper
     fix: str = ""                 # how a row that is impossible as printed was made buildable
+    kernel_widths: tuple[int, ...] = ()  # widths of the deconvs then the convs; () for square kernels
 
     def __post_init__(self) -> None:
-        if not self.conv_kernels or min(self.conv_kernels + self.deconv_kernels) < 1:
+        heights = self.deconv_kernels + self.conv_kernels
+        if not self.conv_kernels or min(heights + self.kernel_widths) < 1:
             raise ValueError(f"{self.name}: needs at least one conv and positive kernel sizes")
+        if self.kernel_widths and len(self.kernel_widths) != len(heights):
+            raise ValueError(f"{self.name}: {len(self.kernel_widths)} kernel widths for "
+                             f"{len(heights)} layers")
         if self.output_size(self.patch) != 1:
-            raise ValueError(f"{self.name}: a {self.patch}x{self.patch} patch maps to "
-                             f"{self.output_size(self.patch)}x{self.output_size(self.patch)}, not 1x1")
+            raise ValueError(f"{self.name}: a {self.patch}-pixel-high patch maps to "
+                             f"{self.output_size(self.patch)} rows, not 1")
+
+    @property
+    def kernel_shapes(self) -> tuple[tuple[int, int], ...]:
+        """(height, width) of each layer, the deconvs first."""
+        heights = self.deconv_kernels + self.conv_kernels
+        return tuple(zip(heights, self.kernel_widths or heights, strict=True))
+
+    @property
+    def patch_shape(self) -> tuple[int, int]:
+        """(height, width) of the left training patch: the input that the valid tower maps to 1x1."""
+        deconvs = len(self.deconv_kernels)
+        widths = [width for _, width in self.kernel_shapes]
+        return self.patch, 1 + sum(k - 1 for k in widths[deconvs:]) - sum(k - 1 for k in widths[:deconvs])
+
+    @property
+    def receptive_field_shape(self) -> tuple[int, int]:
+        """(height, width) of the input window that one feature depends on when the tower runs on a whole
+        image: the patch grown by each deconv's k - 1 on both sides (see :attr:`receptive_field`)."""
+        deconvs = self.kernel_shapes[:len(self.deconv_kernels)]
+        height, width = self.patch_shape
+        return (height + 2 * sum(h - 1 for h, _ in deconvs), width + 2 * sum(w - 1 for _, w in deconvs))
 
     @property
     def receptive_field(self) -> int:
-        """Side of the input square that one feature depends on when the tower runs on a whole image.
+        """Side of the input square that one feature depends on when the tower runs on a whole image
+        (the larger side of :attr:`receptive_field_shape`: the tiles' halo is square).
 
         Equal to the patch for conv-only towers. A transposed conv (kernel k) pads its input with k - 1
         zeros on each side, so on an isolated patch the outer deconv outputs see zeros, while on an image
         they see the next k - 1 real pixels: the dense field is patch + 2 * sum(k - 1) (45 for
         37-1deconv5-4conv). The output geometry is still set by the patch (P x P -> 1 x 1).
         """
-        return self.patch + 2 * sum(k - 1 for k in self.deconv_kernels)
+        return max(self.receptive_field_shape)
 
     def output_size(self, size: int) -> int:
-        """Output side for an input side in training ('valid') mode: eq. (11) then eq. (10), s=1, p=0."""
+        """Output height for an input height in training ('valid') mode: eq. (11) then eq. (10), s=1, p=0."""
         grown = size + sum(k - 1 for k in self.deconv_kernels)
         return grown - sum(k - 1 for k in self.conv_kernels)
 
     def conv_weight_count(self, channels: int = 64) -> int:
         """Conv + deconv weights of one tower (no biases, no BN), the count of Tables 4 and 5."""
-        kernels = self.deconv_kernels + self.conv_kernels
-        first, rest = kernels[0], kernels[1:]
-        return 3 * first * first * channels + sum(k * k for k in rest) * channels * channels
+        (first_h, first_w), *rest = self.kernel_shapes
+        return 3 * first_h * first_w * channels + sum(h * w for h, w in rest) * channels * channels
 
 
 def split_kernels(reduction: int, layers: int) -> tuple[int, ...]:
@@ -129,7 +160,16 @@ _SMALL = (
       for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)))),
 )
 
-CONFIGS: dict[str, TowerConfig] = {config.name: config for config in _PRINTED + _TABLE7 + _SMALL}
+# Foreground fattening runs along the scanline, while averaging the sensor's noise needs pixels, not width:
+# a receptive field narrow along x and tall along y keeps 13-1deconv3-4conv's depth, channels and about
+# its work (docs/training.md, "An anisotropic tower"). 21x5-1deconv3-4conv sees 25 rows by 9 columns.
+_ANISOTROPIC = (
+    TowerConfig(name="21x5-1deconv3-4conv", patch=21, deconv_kernels=(3,), conv_kernels=(7, 7, 6, 6),
+                kernel_widths=(3, 3, 3, 2, 2), deconv_relu=False, table="project extension"),
+)
+
+CONFIGS: dict[str, TowerConfig] = {config.name: config
+                                   for config in _PRINTED + _TABLE7 + _SMALL + _ANISOTROPIC}
 
 
 def list_configs() -> list[str]:

@@ -46,7 +46,8 @@ class FeatureTower(nn.Module):
         self.standardize = LocalStandardization(standardize_window) if standardize_window else None
         layers: list[nn.Module] = []
         in_channels = 6 if self.standardize is not None else 3
-        kernels = [(k, True) for k in config.deconv_kernels] + [(k, False) for k in config.conv_kernels]
+        deconvs = len(config.deconv_kernels)
+        kernels = [(shape, index < deconvs) for index, shape in enumerate(config.kernel_shapes)]
         for index, (kernel, is_deconv) in enumerate(kernels):
             last = index == len(kernels) - 1
             conv_type = nn.ConvTranspose2d if is_deconv else nn.Conv2d
@@ -63,6 +64,11 @@ class FeatureTower(nn.Module):
         return self.config.patch
 
     @property
+    def patch_shape(self) -> tuple[int, int]:
+        """(height, width) of the patch that the valid tower maps to 1x1 (square but for anisotropic rows)."""
+        return self.config.patch_shape
+
+    @property
     def receptive_field(self) -> int:
         """The config's dense receptive field, grown by the standardisation window when there is one."""
         return self.config.receptive_field + max(self.standardize_window - 1, 0)
@@ -70,9 +76,9 @@ class FeatureTower(nn.Module):
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         if image.ndim != 4 or image.shape[1] != 3:
             raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
-        if image.shape[2] < self.patch or image.shape[3] < self.patch:
-            side = self.patch
-            raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the {side}x{side} patch")
+        height, width = self.patch_shape
+        if image.shape[2] < height or image.shape[3] < width:
+            raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the {height}x{width} patch")
         if self.standardize is not None:
             image = self.standardize(image)
         return l2_normalize(self.layers(image))
@@ -82,19 +88,19 @@ class FeatureTower(nn.Module):
         return sum(m.weight.numel() for m in self.modules() if isinstance(m, nn.Conv2d | nn.ConvTranspose2d))
 
 
-def same_padding(patch: int) -> tuple[int, int, int, int]:
-    """(left, right, top, bottom) padding that makes a valid tower keep H x W; odd patches centre exactly."""
-    before = (patch - 1) // 2
-    after = patch - 1 - before
-    return (before, after, before, after)
+def same_padding(patch_shape: tuple[int, int]) -> tuple[int, int, int, int]:
+    """(left, right, top, bottom) padding that makes a valid tower of this (height, width) patch keep
+    H x W; odd sides centre exactly."""
+    height, width = patch_shape
+    return ((width - 1) // 2, width - 1 - (width - 1) // 2, (height - 1) // 2, height - 1 - (height - 1) // 2)
 
 
 def dense_features(tower: FeatureTower, image: torch.Tensor) -> torch.Tensor:
-    """Features for every pixel, [N, C, H, W]: replicate-pad by (P - 1) / 2, then the tower.
+    """Features for every pixel, [N, C, H, W]: replicate-pad by half the patch, then the tower.
 
     Replicate ('edge') padding extends border texture instead of inventing black bars that would match
     each other across the two views; the exported ONNX graph pads the same way.
     """
     if image.ndim != 4:
         raise ValueError(f"expected images [N, 3, H, W], got {tuple(image.shape)}")
-    return tower(F.pad(image, same_padding(tower.patch), mode="replicate"))
+    return tower(F.pad(image, same_padding(tower.patch_shape), mode="replicate"))

@@ -25,6 +25,9 @@ class Objective(nn.Module):
             raise ValueError(f"the {label} label needs the fractional truth of dense crops (--mode dense)")
         if edge_weight and mode == "patch":
             raise ValueError("the depth-edge weight needs the dense ground truth of crops (--mode dense)")
+        if mode == "patch" and len(set(model.left.patch_shape)) > 1:
+            raise ValueError(f"patch mode cuts square patches; {model.config.name} is anisotropic "
+                             "(--mode dense)")
         check_edge_weight(edge_weight)
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
 
