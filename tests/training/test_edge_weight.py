@@ -108,18 +108,19 @@ def _chunk_command_lines(tmp_path, **env: str) -> list:
 
 def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others(tmp_path):
     """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 11-px tower at edge weight 4
-    alone for 14000 steps, every example its own scene, sized for one device call and a short second,
-    resumed from its own folder; PLAN names other runs (the twenty-third session's call: the weight
-    against its control, the same seed, steps and schedule)."""
+    alone, four camera draws per scene, on a 28000-step schedule that its time budget cuts to the other
+    arm's device time (the twenty-seventh session's run: DRAWS=1, 14000 steps, .gpu/long), resumed from
+    its own folder; PLAN names other runs (the twenty-third session's call: the weight against its
+    control, the same seed, steps and schedule)."""
     from training.train import argument_problem
 
     (alone,) = _chunk_command_lines(tmp_path, WORKERS="15")
-    assert (alone.config, alone.edge_weight, alone.out) == ("11-5conv", 4.0, ".gpu/long/k11-w4")
+    assert (alone.config, alone.edge_weight, alone.out) == ("11-5conv", 4.0, ".gpu/draws4/k11-w4")
     pair = _chunk_command_lines(tmp_path, PLAN="k17-w4 k17-w0", ITERATIONS="5000", RUNS=".gpu/runs",
                                 WORKERS="7")
     assert [(args.config, args.edge_weight) for args in pair] == [
         ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
-    for args, iterations, workers in [(alone, 14000, 15), *((args, 5000, 7) for args in pair)]:
+    for args, iterations, workers in [(alone, 28000, 15), *((args, 5000, 7) for args in pair)]:
         assert argument_problem(args) is None
         assert (args.device, args.resume, args.schedule, args.seed, args.iterations, args.workers) == (
             "cuda", "auto", "cosine", 0, iterations, workers)
@@ -129,9 +130,10 @@ def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others
     assert [(args.config, args.edge_weight, args.iterations) for args in four] == [
         ("11-5conv", 4.0, 9000), ("11-5conv", 0.0, 9000), ("13-1deconv3-4conv", 4.0, 9000),
         ("13-1deconv3-4conv", 0.0, 9000)]
-    assert alone.camera_draws == 1 and all(args.camera_draws == 1 for args in four)
-    (drawn,) = _chunk_command_lines(tmp_path, DRAWS="4")  # the equal-time A/B's other arm
-    assert drawn.camera_draws == 4 and argument_problem(drawn) is None
+    assert alone.camera_draws == 4 and all(args.camera_draws == 4 for args in four)
+    (control,) = _chunk_command_lines(tmp_path, DRAWS="1", ITERATIONS="14000", RUNS=".gpu/long")
+    assert (control.camera_draws, control.iterations, control.out) == (1, 14000, ".gpu/long/k11-w4")
+    assert argument_problem(control) is None  # the equal-time A/B's other arm, as it ran
 
 
 def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):
