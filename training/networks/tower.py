@@ -92,7 +92,8 @@ def same_padding(patch_shape: tuple[int, int]) -> tuple[int, int, int, int]:
     """(left, right, top, bottom) padding that makes a valid tower of this (height, width) patch keep
     H x W; odd sides centre exactly."""
     height, width = patch_shape
-    return ((width - 1) // 2, width - 1 - (width - 1) // 2, (height - 1) // 2, height - 1 - (height - 1) // 2)
+    top, left = (height - 1) // 2, (width - 1) // 2
+    return (left, width - 1 - left, top, height - 1 - top)
 
 
 def dense_features(tower: FeatureTower, image: torch.Tensor) -> torch.Tensor:
