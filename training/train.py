@@ -93,6 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="synthetic data: paint this share of the surfaces at twice the spatial "
                              "frequency (finer detail, as real photographs have); the rest of each scene "
                              "stays that of a run without it (default 0; docs/data.md)")
+    parser.add_argument("--downsampled-views", type=float, default=0.0, metavar="P",
+                        help="synthetic data: render and photograph this share of the scenes at twice the "
+                             "size, then average 2 x 2 (a downsampled photograph, as the real evaluation "
+                             "pairs are: finer scenes, anti-aliased edges, half the noise; default 0; "
+                             "docs/data.md)")
     parser.add_argument("--camera-draws", type=int, default=1, metavar="K",
                         help="synthetic data: render each scene once and take it with K freshly drawn "
                              "cameras (K consecutive examples; K divides the batch size): ~2.4x the "
@@ -153,8 +158,8 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
-    # (--edge-weight, --vignetting, --clean-views, --curved-surfaces and --fine-textures are checked where
-    # they are used, NaN included.)
+    # (--edge-weight, --vignetting, --clean-views, --curved-surfaces, --fine-textures and
+    # --downsampled-views are checked where they are used, NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
               ("time-budget", args.time_budget, False))
     for name, value, positive in floats:
@@ -218,6 +223,7 @@ def main(argv: list[str] | None = None) -> int:
                          edge_weight=args.edge_weight, rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,
+                         downsampled_views=args.downsampled_views,
                          camera_draws=args.camera_draws, val_every=args.val_every, val_pairs=args.val_pairs,
                          cones=args.cones, out=args.out,
                          threads=args.threads, stop_after=args.stop_after, device=args.device,

@@ -5,8 +5,9 @@ over the non-occluded ones where the dataset has a mask, the error breakdown (bo
 the check, accepted pixels by distance to a disparity jump: service/evaluation/breakdown.py), plus
 seconds per pair; one progress line per
 pair goes to stderr. ``--json OUT`` writes the full report (``-``: to stdout instead of the table).
-SPEC: synthetic[:N] | synthetic-clean[:N] | synthetic-curved[:N] | synthetic-fine[:N] | motorcycle |
-kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH.
+SPEC: synthetic[:N] | synthetic-clean[:N] | synthetic-curved[:N] | synthetic-fine[:N] |
+synthetic-downsampled[:N] | motorcycle | kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH |
+PATH.
 """
 
 from __future__ import annotations
@@ -37,8 +38,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add("--model", type=Path, metavar="DIR", help="model folder (default: $ADSM_MODEL_DIR or the shipped)")
     add("--data", required=True, metavar="SPEC",
         help="synthetic[:N] | synthetic-clean[:N] (the same scenes without camera effects) | "
-             "synthetic-curved[:N] | synthetic-fine[:N] (with those training levers at 0.5) | motorcycle "
-             "(Middlebury 2014's Motorcycle as scikit-image ships it; these five need the train extra) | "
+             "synthetic-curved[:N] | synthetic-fine[:N] (with those training levers at 0.5) | "
+             "synthetic-downsampled[:N] (photographed at 2x, averaged 2 x 2) | motorcycle "
+             "(Middlebury 2014's Motorcycle as scikit-image ships it; these six need the train extra) | "
              "kitti2012:PATH | kitti2015:PATH | middlebury:PATH | cones:PATH | PATH")
     add("--max-disparity", type=int, metavar="D",
         help="disparity range D (default: the dataset's recommendation, else the model's)")

@@ -11,6 +11,9 @@ SPEC string:
     synthetic-curved[:N]  the same scenes and cameras with half the objects curved and shaded, and
     synthetic-fine[:N]    with half the surfaces painted at twice the spatial frequency: what the
                           training levers of those names add, measured on a matcher
+    synthetic-downsampled[:N]  the split's seeds rendered and photographed at twice the size, then
+                          averaged 2 x 2, as the real pairs are downsampled photographs (other scenes:
+                          a larger image draws more objects)
     motorcycle            Middlebury 2014's Motorcycle at quarter size, as scikit-image's wheel ships
                           it: a second real pair, evaluation only (train extra)
     kitti2012:PATH        KITTI 2012 (colored_0, colored_1, disp_occ, disp_noc)

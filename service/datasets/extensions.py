@@ -29,6 +29,7 @@ EXTRA_KINDS = {"synthetic": ExtraKind(extra="train", usage="synthetic[:N]"),
                "synthetic-clean": ExtraKind(extra="train", usage="synthetic-clean[:N]"),
                "synthetic-curved": ExtraKind(extra="train", usage="synthetic-curved[:N]"),
                "synthetic-fine": ExtraKind(extra="train", usage="synthetic-fine[:N]"),
+               "synthetic-downsampled": ExtraKind(extra="train", usage="synthetic-downsampled[:N]"),
                "motorcycle": ExtraKind(extra="train", usage="motorcycle")}
 
 

@@ -5,12 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.datasets import StereoSample
 from training.data.synthetic.generator import (
     VALIDATION_CONFIG,
     VALIDATION_SEED,
     SyntheticConfig,
+    downsampled,
     generate,
     random_scene,
+    render_scene,
     validation_split,
 )
 from training.data.synthetic.photometric import Photometric, apply_camera
@@ -204,6 +207,51 @@ def test_fine_textures_repaint_that_share_of_the_surfaces_and_leave_the_rest_alo
     with pytest.raises(ValueError, match="detail"):
         random_scene(np.random.default_rng(0), height=64, width=64, max_disparity=8, photo_probability=0,
                      fine_textures=0.5)
+
+
+def test_downsampled_averages_blocks_and_keeps_the_truth_only_where_the_block_agrees():
+    left = np.arange(4 * 6 * 3, dtype=np.uint8).reshape(4, 6, 3)
+    truth = np.array([[4, 4, 8, 8, 6, 6],
+                      [4, 4, 8, 8, 6, 7.5],
+                      [2, 3, 8, 8, np.nan, 6],
+                      [2, 3, 8, 2, 6, 6]], dtype=np.float32)
+    visible = np.ones((4, 6), bool)
+    visible[3, 0] = False
+    sample = StereoSample(name="s", left=left, right=left[:, ::-1].copy(), disparity=truth,
+                          nonoccluded=visible, max_disparity=16)
+    small = downsampled(sample, 2)
+    assert small.left.shape == (2, 3, 3) and small.max_disparity == 8
+    np.testing.assert_array_equal(small.left, np.rint(left.reshape(2, 2, 3, 2, 3).mean(axis=(1, 3))))
+    # Halved where the four agree to within a rendered pixel; unknown across an edge or a hole.
+    np.testing.assert_array_equal(small.disparity, np.array([[2, 4, np.nan], [1.25, np.nan, np.nan]],
+                                                            dtype=np.float32))
+    np.testing.assert_array_equal(small.nonoccluded, [[True, True, True], [False, True, True]])
+
+
+@pytest.mark.torch  # the train extra: scikit-image's photos paint the scenes
+def test_downsampling_photographs_the_scene_at_that_factor_and_averages_it():
+    config = SyntheticConfig(height=48, width=96, max_disparity=24, downsampling=2)
+    assert config.rendered == SyntheticConfig(height=96, width=192, max_disparity=48)
+    rendering, _ = render_scene(4, config)
+    assert rendering.left.shape == (96, 192, 3)
+    sample = generate(4, config)
+    assert sample.left.shape == (48, 96, 3) and sample.max_disparity == 24
+    known = np.isfinite(sample.disparity)
+    assert 0.8 < known.mean() < 1 and np.nanmax(sample.disparity) <= 24
+    # Without camera effects: the full-size pair's 8-bit renders and truth, averaged.
+    exact = generate(4, SyntheticConfig(height=48, width=96, max_disparity=24, downsampling=2,
+                                        photometric=None))
+    full = generate(4, SyntheticConfig(height=96, width=192, max_disparity=48, photometric=None))
+    np.testing.assert_array_equal(exact.left, downsampled(full, 2).left)
+    np.testing.assert_array_equal(exact.disparity, sample.disparity)
+    # A visible pixel whose truth is a whole disparity finds its own colour in the right view.
+    y, x = np.nonzero(known & exact.nonoccluded & (np.abs(exact.disparity - np.rint(exact.disparity)) < 0.05))
+    xr = (x - np.rint(exact.disparity[y, x])).astype(int)
+    assert np.median(np.abs(exact.left[y, x].astype(int) - exact.right[y, xr].astype(int))) <= 2
+    assert VALIDATION_CONFIG.downsampling == 1 and VALIDATION_CONFIG.rendered is VALIDATION_CONFIG
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match="downsampling"):
+            SyntheticConfig(downsampling=bad)
 
 
 def test_renderer_refuses_an_uncovered_scene_and_edge_on_planes():

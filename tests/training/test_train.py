@@ -311,6 +311,7 @@ def test_the_data_levers_reach_the_generator() -> None:
     ("--clean-views", "clean_views", "clean views must be a share in [0, 1], got"),
     ("--curved-surfaces", "curved_surfaces", "curved surfaces must be a share in [0, 1], got"),
     ("--fine-textures", "fine_textures", "fine textures must be a share in [0, 1], got"),
+    ("--downsampled-views", "downsampled_views", "downsampled views must be a share in [0, 1], got"),
 ])
 def test_bad_data_lever_values_are_refused(tmp_path, capsys, flag, field, message) -> None:
     with pytest.raises(ValueError, match=re.escape(message)):
@@ -319,6 +320,26 @@ def test_bad_data_lever_values_are_refused(tmp_path, capsys, flag, field, messag
                  "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--cones", "",
                  flag, "-0.1", "--out", str(tmp_path)]) == 1
     assert f"{message} -0.1" in capsys.readouterr().err
+
+
+def test_downsampled_views_photograph_that_share_of_the_scenes_at_twice_the_size() -> None:
+    plain = TrainingData("synthetic", seed=5, spec=BatchSpec(height=48, width=96, max_disparity=24,
+                                                             camera_draws=2))
+    share = TrainingData("synthetic", seed=5, spec=BatchSpec(height=48, width=96, max_disparity=24,
+                                                             downsampled_views=0.5, camera_draws=2))
+    chosen, unknown = [], 0
+    for index in range(12):
+        (a, rng_a), (b, rng_b) = plain.sample(index), share.sample(index)
+        assert b.left.shape == a.left.shape and b.max_disparity == a.max_disparity
+        assert rng_a.random() == rng_b.random()  # the crop and augmentation draws are the run's own
+        chosen.append(not np.array_equal(a.disparity, b.disparity, equal_nan=True))
+        unknown += chosen[-1] and bool(np.isnan(b.disparity).any())
+    assert unknown  # the blocks across a depth edge have no truth
+    # The choice is per scene: both camera draws of a scene (examples 2j, 2j + 1) share it.
+    assert chosen[0::2] == chosen[1::2] and 0 < sum(chosen) < 12
+    for index in range(12):  # the examples of the other scenes are a run's without the lever
+        if not chosen[index]:
+            np.testing.assert_array_equal(share.sample(index)[0].left, plain.sample(index)[0].left)
 
 
 def test_clean_views_render_that_share_of_the_same_scenes_without_camera_effects() -> None:

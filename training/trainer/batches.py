@@ -59,6 +59,9 @@ class BatchSpec:
     clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
     curved_surfaces: float = 0.0   # synthetic: share of objects that bulge towards the cameras, shaded
     fine_textures: float = 0.0     # synthetic: share of surfaces painted at twice the spatial frequency
+    # synthetic: share of scenes rendered and photographed at twice the size, then averaged 2 x 2 (a
+    # downsampled photograph, as the real evaluation pairs are; SyntheticConfig.downsampling)
+    downsampled_views: float = 0.0
     # synthetic: examples per rendered scene, each through freshly drawn cameras. The scene and its
     # rendering are ~85 % of a pair's cost and bound a GPU run's steps per second (docs/training.md).
     camera_draws: int = 1
@@ -71,6 +74,7 @@ class BatchSpec:
         check_share("clean views", self.clean_views)
         check_share("curved surfaces", self.curved_surfaces)
         check_share("fine textures", self.fine_textures)
+        check_share("downsampled views", self.downsampled_views)
         if isinstance(self.camera_draws, bool) or not isinstance(self.camera_draws, int) \
                 or self.camera_draws < 1:
             raise ValueError(f"camera draws must be a whole number >= 1, got {self.camera_draws!r}")
@@ -95,10 +99,12 @@ class TrainingData:
             photometric=Photometric(vignetting=(0.0, spec.vignetting)),
             rectification=Rectification() if spec.rectification_error else None,
             curved_surfaces=spec.curved_surfaces, fine_textures=spec.fine_textures)
-        self.clean = dataclasses.replace(self.synthetic, photometric=None)
         # The last scene rendered, with its stream's state where the scene's draws end: the examples that
         # share a scene are consecutive, so one entry serves a whole batch's.
         self._scene: tuple[int, Rendering, dict] | None = None
+
+    # Tags of the streams that draw a lever's per-example or per-scene choice, apart from the example's.
+    _CLEAN_STREAM, _DOWNSAMPLED_STREAM = 1, 2
 
     @property
     def trained_range(self) -> list[int]:
@@ -115,8 +121,9 @@ class TrainingData:
     def _synthetic(self, index: int) -> StereoSample:
         scene, draw = divmod(index, self.spec.camera_draws)
         seed = self.seed * SEED_STRIDE + scene
+        config = self._camera(index)
         if self._scene is None or self._scene[0] != seed:
-            rendering, camera = render_scene(seed, self.synthetic)
+            rendering, camera = render_scene(seed, config)
             self._scene = (seed, rendering, camera.bit_generator.state)
         _, rendering, state = self._scene
         if draw == 0:  # the seed's own cameras: with one draw per scene, exactly generate(seed)
@@ -124,16 +131,22 @@ class TrainingData:
             camera.bit_generator.state = state
         else:
             camera = other_cameras(seed, draw)
-        return photograph(rendering, camera, self._camera(index), name=f"synthetic-{seed}")
+        return photograph(rendering, camera, config, name=f"synthetic-{seed}")
 
     def _camera(self, index: int) -> SyntheticConfig:
-        """The generator config of synthetic example ``index``: with probability ``clean_views`` the same
-        scene without camera effects. The draw has its own stream, so the crops (and, at 0, everything)
-        stay those of a run without the lever."""
+        """The generator config of synthetic example ``index``: with probability ``downsampled_views`` (per
+        scene) its scene is rendered and photographed at twice the size and averaged 2 x 2, and with
+        probability ``clean_views`` (per example) it is taken without camera effects. Each choice has its
+        own stream, so the crops (and, at 0, everything) stay those of a run without the levers."""
+        config = self.synthetic
+        scene = index // self.spec.camera_draws
+        share = self.spec.downsampled_views
+        if share and np.random.default_rng([self.seed, scene, self._DOWNSAMPLED_STREAM]).random() < share:
+            config = dataclasses.replace(config, downsampling=2)
         share = self.spec.clean_views
-        if share and np.random.default_rng([self.seed, index, 1]).random() < share:
-            return self.clean
-        return self.synthetic
+        if share and np.random.default_rng([self.seed, index, self._CLEAN_STREAM]).random() < share:
+            config = dataclasses.replace(config, photometric=None)
+        return config
 
     def crops(self, indices: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Dense batch: left, right [B, 3, h, w] in [0, 1] and disparity [B, h, w] (NaN unknown)."""

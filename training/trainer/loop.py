@@ -62,6 +62,7 @@ class TrainConfig:
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
     curved_surfaces: float = 0.0        # synthetic: share of objects that bulge towards the cameras
     fine_textures: float = 0.0          # synthetic: share of surfaces painted at twice the frequency
+    downsampled_views: float = 0.0      # synthetic: share of scenes photographed at 2x, averaged 2 x 2
     camera_draws: int = 1               # synthetic: examples per rendered scene (fresh cameras each)
     val_every: int = 200
     val_pairs: int = 8
@@ -107,7 +108,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
                      patches_per_pair=per_example, augmentation=config.augmentation,
                      rectification_error=config.rectification_error, vignetting=config.vignetting,
                      clean_views=config.clean_views, curved_surfaces=config.curved_surfaces,
-                     fine_textures=config.fine_textures, camera_draws=config.camera_draws,
+                     fine_textures=config.fine_textures, downsampled_views=config.downsampled_views,
+                     camera_draws=config.camera_draws,
                      patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)
 

@@ -79,7 +79,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                        "view in the left half of each frame; videos need the video extra); or an adsm "
                        "eval dataset: kitti2012:PATH, kitti2015:PATH, middlebury:PATH, cones:PATH, "
                        "synthetic[:N], synthetic-clean[:N], synthetic-curved[:N], synthetic-fine[:N], "
-                       "motorcycle (train extra)")
+                       "synthetic-downsampled[:N], motorcycle (train extra)")
     batch.add_argument("--pairs", type=Path, metavar="LIST", help="text file, one 'LEFT RIGHT' pair per line")
     batch.add_argument("--out-dir", type=Path, metavar="DIR", help="short for -o DIR/{name}.<format>")
     batch.add_argument("--skip-existing", action="store_true", help="skip pairs whose disparity file exists")

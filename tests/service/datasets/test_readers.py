@@ -18,6 +18,7 @@ from training.data.motorcycle import open_motorcycle
 from training.data.synthetic import (
     open_clean_validation_split,
     open_curved_validation_split,
+    open_downsampled_validation_split,
     open_fine_validation_split,
     open_validation_split,
 )
@@ -165,11 +166,23 @@ def test_lever_specs_are_the_same_scenes_and_cameras_with_the_lever_at_half():
     assert domes
 
 
+@pytest.mark.torch
+def test_downsampled_spec_is_the_split_seeds_photographed_at_twice_the_size():
+    pairs = open_dataset("synthetic-downsampled:2")
+    assert pairs.name == "synthetic validation photographed at 2x and averaged (2 pairs)"
+    split = open_dataset("synthetic:2")
+    for small, plain in zip(pairs, split, strict=True):
+        assert small.name == plain.name and small.left.shape == plain.left.shape
+        assert small.max_disparity == plain.max_disparity
+        assert 0.8 < np.isfinite(small.disparity).mean() < 1
+
+
 @pytest.mark.parametrize("kind, module, function", [
     ("synthetic", "training.data.synthetic", open_validation_split),
     ("synthetic-clean", "training.data.synthetic", open_clean_validation_split),
     ("synthetic-curved", "training.data.synthetic", open_curved_validation_split),
     ("synthetic-fine", "training.data.synthetic", open_fine_validation_split),
+    ("synthetic-downsampled", "training.data.synthetic", open_downsampled_validation_split),
     ("motorcycle", "training.data.motorcycle", open_motorcycle)])
 def test_train_extra_kinds_are_its_entry_points(kind, module, function):
     entry = extensions.registered()[kind]
@@ -206,6 +219,7 @@ def test_train_extra_kinds_without_it_name_the_extra_in_one_line(monkeypatch, ab
     ("synthetic-clean:-3", "positive pair count, got '-3'"),
     ("synthetic-fine:0", "positive pair count, got '0'"),
     ("synthetic-curved:x", "positive pair count, got 'x'"),
+    ("synthetic-downsampled:0", "positive pair count, got '0'"),
     ("motorcycle:2", "takes no argument, got '2'"),
     ("kitti2015:", "needs the dataset folder"),
     ("sceneflow:/data", "expected synthetic"),

@@ -7,9 +7,10 @@
 
 The runtime reads the validation split as the dataset SPEC ``synthetic[:N]`` (``synthetic-clean[:N]``:
 the same scenes without camera effects; ``synthetic-curved[:N]`` and ``synthetic-fine[:N]``: with the
-training levers of those names) without importing ``training``: pyproject.toml registers
-``open_validation_split`` and its siblings in the ``adsm.datasets`` entry-point group, which
-``service.datasets.open_dataset`` consults (docs/architecture.md). No torch is imported here.
+training levers of those names; ``synthetic-downsampled[:N]``: photographed at 2x and averaged) without
+importing ``training``: pyproject.toml registers ``open_validation_split`` and its siblings in the
+``adsm.datasets`` entry-point group, which ``service.datasets.open_dataset`` consults
+(docs/architecture.md). No torch is imported here.
 """
 
 from .generator import (
@@ -22,6 +23,7 @@ from .generator import (
     generate,
     open_clean_validation_split,
     open_curved_validation_split,
+    open_downsampled_validation_split,
     open_fine_validation_split,
     open_validation_split,
     other_cameras,
@@ -35,6 +37,7 @@ from .photometric import Photometric, Rectification, apply_camera
 __all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
            "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
-           "open_clean_validation_split", "open_curved_validation_split", "open_fine_validation_split",
+           "open_clean_validation_split", "open_curved_validation_split",
+           "open_downsampled_validation_split", "open_fine_validation_split",
            "open_validation_split", "other_cameras", "photograph",
            "random_scene", "render_scene", "validation_split"]

@@ -51,6 +51,10 @@ class SyntheticConfig:
     rectification: Rectification | None = None   # residual rectification error of the right view (training)
     curved_surfaces: float = 0.0        # training: share of objects that bulge towards the cameras, shaded
     fine_textures: float = 0.0          # training: share of surfaces painted at twice the spatial frequency
+    # Render and photograph at this many times the size and range, then average blocks of that side: a
+    # downsampled photograph, as Middlebury's quarter-size pairs are (finer scenes, anti-aliased edges,
+    # camera noise divided by the factor). 1: the pixels as rendered.
+    downsampling: int = 1
 
     def __post_init__(self) -> None:
         if self.height < 8 or self.width < 8:
@@ -59,6 +63,18 @@ class SyntheticConfig:
             raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
         check_share("curved surfaces", self.curved_surfaces)
         check_share("fine textures", self.fine_textures)
+        if isinstance(self.downsampling, bool) or not isinstance(self.downsampling, int) \
+                or self.downsampling < 1:
+            raise ValueError(f"downsampling must be a whole number >= 1, got {self.downsampling!r}")
+
+    @property
+    def rendered(self) -> SyntheticConfig:
+        """The config the scene is drawn, rendered and photographed at (itself without downsampling)."""
+        factor = self.downsampling
+        if factor == 1:
+            return self
+        return dataclasses.replace(self, height=self.height * factor, width=self.width * factor,
+                                   max_disparity=self.max_disparity * factor, downsampling=1)
 
 
 def check_share(what: str, share: float) -> None:
@@ -82,6 +98,7 @@ def render_scene(seed: int, config: SyntheticConfig = SyntheticConfig()
     """The exact two-view rendering of ``seed``'s scene, and the seed's stream where the scene's draws end:
     ``photograph`` with that stream gives ``generate(seed, config)``; with another, the same scene taken by
     other cameras (most of a pair's cost is the scene and its rendering, not the cameras)."""
+    config = config.rendered
     rng = np.random.default_rng(seed)
     # The curved surfaces and the fine textures draw from streams of their own, so that a scene keeps
     # every other layer, texture and camera with a lever on (and draws nothing more with it off).
@@ -102,14 +119,45 @@ def other_cameras(seed: int, draw: int) -> np.random.Generator:
 
 def photograph(rendering: Rendering, camera: np.random.Generator, config: SyntheticConfig, *,
                name: str) -> StereoSample:
-    """Both views of ``rendering`` through the cameras of ``config`` (effects drawn from ``camera``)."""
+    """Both views of ``rendering`` through the cameras of ``config`` (effects drawn from ``camera``);
+    with ``config.downsampling`` > 1, photographed at the rendering's size, then ``downsampled``."""
     left = apply_camera(rendering.left, camera, config.photometric)
     right = rendering.right
     if config.rectification is not None:
         right = rectify_imperfectly(right, camera, config.rectification)
     right = apply_camera(right, camera, config.photometric)
-    return StereoSample(name=name, left=left, right=right, disparity=rendering.disparity,
-                        nonoccluded=~rendering.occluded, max_disparity=config.max_disparity)
+    sample = StereoSample(name=name, left=left, right=right, disparity=rendering.disparity,
+                          nonoccluded=~rendering.occluded, max_disparity=config.rendered.max_disparity)
+    return sample if config.downsampling == 1 else downsampled(sample, config.downsampling)
+
+
+# A downsampled pixel keeps a ground truth only where the rendered pixels it averages agree to within this
+# many rendered pixels of disparity: across a depth edge the block mixes two surfaces, and no one disparity
+# is its truth.
+DOWNSAMPLED_TRUTH_SPREAD = 1.0
+
+
+def downsampled(sample: StereoSample, factor: int) -> StereoSample:
+    """``sample`` averaged over ``factor`` x ``factor`` blocks: views rounded to 8 bits, the disparity the
+    block's mean over ``factor`` (unknown where the block spans more than ``DOWNSAMPLED_TRUTH_SPREAD``),
+    visible where the whole block is, the range divided by ``factor``."""
+    height, width = sample.left.shape[0] // factor, sample.left.shape[1] // factor
+
+    def blocks(image: np.ndarray) -> np.ndarray:
+        return image[:height * factor, :width * factor].reshape(height, factor, width, factor,
+                                                                 *image.shape[2:])
+
+    def view(image: np.ndarray) -> np.ndarray:
+        return np.rint(blocks(image).mean(axis=(1, 3), dtype=np.float32)).astype(np.uint8)
+
+    truth = blocks(sample.disparity)
+    spread = truth.max(axis=(1, 3)) - truth.min(axis=(1, 3))
+    disparity = np.where(spread <= DOWNSAMPLED_TRUTH_SPREAD, truth.mean(axis=(1, 3)) / factor, np.nan)
+    nonoccluded = None if sample.nonoccluded is None else blocks(sample.nonoccluded).all(axis=(1, 3))
+    max_disparity = None if sample.max_disparity is None else sample.max_disparity // factor
+    return StereoSample(name=sample.name, left=view(sample.left), right=view(sample.right),
+                        disparity=disparity.astype(np.float32), nonoccluded=nonoccluded,
+                        max_disparity=max_disparity)
 
 
 class SyntheticStereo(Sequence[StereoSample]):
@@ -133,18 +181,22 @@ class SyntheticStereo(Sequence[StereoSample]):
 
 
 def validation_split(count: int = DEFAULT_VALIDATION_COUNT, *, camera_effects: bool = True,
-                     curved_surfaces: float = 0.0, fine_textures: float = 0.0) -> SyntheticStereo:
+                     curved_surfaces: float = 0.0, fine_textures: float = 0.0,
+                     downsampling: int = 1) -> SyntheticStereo:
     """The first ``count`` pairs of the fixed synthetic validation split. The other arguments make
-    diagnostics of the same scenes (docs/data.md): ``camera_effects=False`` renders them exactly (8-bit
+    diagnostics of the same seeds (docs/data.md): ``camera_effects=False`` renders them exactly (8-bit
     only), telling the scenes' difficulty from the cameras'; ``curved_surfaces`` and ``fine_textures``
-    apply the training levers of those names, so a matcher can be measured on what they add."""
+    apply the training levers of those names, so a matcher can be measured on what they add;
+    ``downsampling`` photographs them at that factor and averages blocks (other scenes: a larger image
+    draws more objects)."""
     config = dataclasses.replace(VALIDATION_CONFIG, curved_surfaces=curved_surfaces,
-                                 fine_textures=fine_textures)
+                                 fine_textures=fine_textures, downsampling=downsampling)
     if not camera_effects:
         config = dataclasses.replace(config, photometric=None)
     variants = [" without camera effects"] if not camera_effects else []
     variants += [f" with {lever} (share {share:g})" for lever, share in
                  (("curved surfaces", curved_surfaces), ("fine textures", fine_textures)) if share]
+    variants += [f" photographed at {downsampling}x and averaged"] if downsampling > 1 else []
     split = SyntheticStereo(count=count, first_seed=VALIDATION_SEED, config=config)
     split.name = f"synthetic validation{','.join(variants)} ({count} pairs)"
     return split
@@ -174,6 +226,12 @@ def open_fine_validation_split(argument: str) -> SyntheticStereo:
     """The dataset SPEC ``synthetic-fine[:N]``: the split's first N scenes, cameras included, with the
     ``fine_textures`` lever at ``DIAGNOSTIC_SHARE``."""
     return validation_split(_pair_count(argument), fine_textures=DIAGNOSTIC_SHARE)
+
+
+def open_downsampled_validation_split(argument: str) -> SyntheticStereo:
+    """The dataset SPEC ``synthetic-downsampled[:N]``: the split's first N seeds, cameras included,
+    photographed at twice the size and averaged 2 x 2 (``SyntheticConfig.downsampling``)."""
+    return validation_split(_pair_count(argument), downsampling=2)
 
 
 def _pair_count(argument: str) -> int:
