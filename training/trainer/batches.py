@@ -24,6 +24,7 @@ from service.datasets.readers import detect_kind
 from training.data.evaluation_only import EVALUATION_ONLY, MOTORCYCLE_SPEC
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
 from training.data.synthetic import (
+    DOWNSAMPLING,
     VALIDATION_SEED,
     Photometric,
     Rectification,
@@ -142,7 +143,7 @@ class TrainingData:
         scene = index // self.spec.camera_draws
         share = self.spec.downsampled_views
         if share and np.random.default_rng([self.seed, scene, self._DOWNSAMPLED_STREAM]).random() < share:
-            config = dataclasses.replace(config, downsampling=2)
+            config = dataclasses.replace(config, downsampling=DOWNSAMPLING)
         share = self.spec.clean_views
         if share and np.random.default_rng([self.seed, index, self._CLEAN_STREAM]).random() < share:
             config = dataclasses.replace(config, photometric=None)

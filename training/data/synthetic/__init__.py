@@ -15,6 +15,7 @@ importing ``training``: pyproject.toml registers ``open_validation_split`` and i
 
 from .generator import (
     DEFAULT_VALIDATION_COUNT,
+    DOWNSAMPLING,
     VALIDATION_CONFIG,
     VALIDATION_SEED,
     SyntheticConfig,
@@ -34,7 +35,7 @@ from .generator import (
 )
 from .photometric import Photometric, Rectification, apply_camera
 
-__all__ = ["DEFAULT_VALIDATION_COUNT", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
+__all__ = ["DEFAULT_VALIDATION_COUNT", "DOWNSAMPLING", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
            "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
            "open_clean_validation_split", "open_curved_validation_split",

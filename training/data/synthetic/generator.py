@@ -39,6 +39,7 @@ from .textures import ImageTexture, minified, random_texture
 VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
 DIAGNOSTIC_SHARE = 0.5                  # the lever's share in the SPECs synthetic-curved and synthetic-fine
+DOWNSAMPLING = 2                        # the factor of the SPEC synthetic-downsampled and --downsampled-views
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -231,7 +232,7 @@ def open_fine_validation_split(argument: str) -> SyntheticStereo:
 def open_downsampled_validation_split(argument: str) -> SyntheticStereo:
     """The dataset SPEC ``synthetic-downsampled[:N]``: the split's first N seeds, cameras included,
     photographed at twice the size and averaged 2 x 2 (``SyntheticConfig.downsampling``)."""
-    return validation_split(_pair_count(argument), downsampling=2)
+    return validation_split(_pair_count(argument), downsampling=DOWNSAMPLING)
 
 
 def _pair_count(argument: str) -> int:
