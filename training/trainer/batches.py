@@ -122,7 +122,7 @@ class TrainingData:
     def _synthetic(self, index: int) -> StereoSample:
         scene, draw = divmod(index, self.spec.camera_draws)
         seed = self.seed * SEED_STRIDE + scene
-        config = self._camera(index)
+        config = self._config(index)
         if self._scene is None or self._scene[0] != seed:
             rendering, camera = render_scene(seed, config)
             self._scene = (seed, rendering, camera.bit_generator.state)
@@ -134,7 +134,7 @@ class TrainingData:
             camera = other_cameras(seed, draw)
         return photograph(rendering, camera, config, name=f"synthetic-{seed}")
 
-    def _camera(self, index: int) -> SyntheticConfig:
+    def _config(self, index: int) -> SyntheticConfig:
         """The generator config of synthetic example ``index``: with probability ``downsampled_views`` (per
         scene) its scene is rendered and photographed at twice the size and averaged 2 x 2, and with
         probability ``clean_views`` (per example) it is taken without camera effects. Each choice has its

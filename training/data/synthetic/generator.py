@@ -34,7 +34,7 @@ from .scene import (
     Shaded,
     render,
 )
-from .textures import ImageTexture, minified, random_texture
+from .textures import ImageTexture, blocks, minified, random_texture
 
 VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
@@ -142,19 +142,13 @@ def downsampled(sample: StereoSample, factor: int) -> StereoSample:
     """``sample`` averaged over ``factor`` x ``factor`` blocks: views rounded to 8 bits, the disparity the
     block's mean over ``factor`` (unknown where the block spans more than ``DOWNSAMPLED_TRUTH_SPREAD``),
     visible where the whole block is, the range divided by ``factor``."""
-    height, width = sample.left.shape[0] // factor, sample.left.shape[1] // factor
-
-    def blocks(image: np.ndarray) -> np.ndarray:
-        return image[:height * factor, :width * factor].reshape(height, factor, width, factor,
-                                                                 *image.shape[2:])
-
     def view(image: np.ndarray) -> np.ndarray:
-        return np.rint(blocks(image).mean(axis=(1, 3), dtype=np.float32)).astype(np.uint8)
+        return np.rint(blocks(image, factor).mean(axis=(1, 3), dtype=np.float32)).astype(np.uint8)
 
-    truth = blocks(sample.disparity)
+    truth = blocks(sample.disparity, factor)
     spread = truth.max(axis=(1, 3)) - truth.min(axis=(1, 3))
     disparity = np.where(spread <= DOWNSAMPLED_TRUTH_SPREAD, truth.mean(axis=(1, 3)) / factor, np.nan)
-    nonoccluded = None if sample.nonoccluded is None else blocks(sample.nonoccluded).all(axis=(1, 3))
+    nonoccluded = None if sample.nonoccluded is None else blocks(sample.nonoccluded, factor).all(axis=(1, 3))
     max_disparity = None if sample.max_disparity is None else sample.max_disparity // factor
     return StereoSample(name=sample.name, left=view(sample.left), right=view(sample.right),
                         disparity=disparity.astype(np.float32), nonoccluded=nonoccluded,

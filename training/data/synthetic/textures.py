@@ -90,11 +90,21 @@ def minified(texture: ImageTexture) -> ImageTexture:
     >>> minified(ImageTexture(np.zeros((9, 6, 3), np.float32))).image.shape
     (4, 3, 3)
     """
-    height, width = texture.image.shape[0] // 2 * 2, texture.image.shape[1] // 2 * 2
-    if height == 0 or width == 0:
+    pixels = blocks(texture.image, 2)
+    if pixels.size == 0:
         return texture
-    blocks = texture.image[:height, :width].reshape(height // 2, 2, width // 2, 2, 3)
-    return dataclasses.replace(texture, image=blocks.mean(axis=(1, 3), dtype=np.float32))
+    return dataclasses.replace(texture, image=pixels.mean(axis=(1, 3), dtype=np.float32))
+
+
+def blocks(image: np.ndarray, factor: int) -> np.ndarray:
+    """``image`` (H, W, ...) cut to whole ``factor`` x ``factor`` blocks and viewed as (H // factor, factor,
+    W // factor, factor, ...): a reduction over axes (1, 3) is one value per block.
+
+    >>> blocks(np.zeros((5, 6)), 2).shape
+    (2, 2, 3, 2)
+    """
+    height, width = image.shape[0] // factor, image.shape[1] // factor
+    return image[:height * factor, :width * factor].reshape(height, factor, width, factor, *image.shape[2:])
 
 
 def value_noise(rng: np.random.Generator, height: int, width: int, *, octaves: int, period: float,
