@@ -144,27 +144,42 @@ def check_edge_weight(weight: float) -> None:
         raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {weight}")
 
 
+# Where the depth-edge weight applies: "both" sides of an edge within a fixed radius, or the "far" side
+# only, out to the tower's reach (the background pixels whose window a nearer surface enters).
+EDGE_REGIONS = ("both", "far")
+
+
 def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight: float,
-                       radius: int = 3) -> torch.Tensor:
-    """Per-example loss weights [M]: ``1 + weight`` within ``radius`` px of a depth edge, else 1.
+                       radius: int = 3, region: str = "both") -> torch.Tensor:
+    """Per-example loss weights [M]: ``1 + weight`` on the pixels of ``region``, else 1.
 
     ``disparity`` [B, H, W] (NaN unknown), ``pixels`` [M, 3] the (b, y, x) of the examples, as
-    :func:`dense_candidates` returns them. A depth edge is a labelled pixel whose 4-neighbour is labelled
-    and more than ``JUMP_PX`` away, or is not labelled (an occlusion or the end of the ground truth): the
-    pixels where a wide receptive field fattens the foreground, which a plain mean under-weights (they
-    are a few percent of a crop).
+    :func:`dense_candidates` returns them. ``region="both"``: within ``radius`` px of a depth edge, a
+    labelled pixel whose 4-neighbour is labelled and more than ``JUMP_PX`` away, or is not labelled (an
+    occlusion or the end of the ground truth): the pixels where a wide receptive field fattens the
+    foreground, which a plain mean under-weights (they are a few percent of a crop). ``region="far"``:
+    only the labelled pixels with a surface more than ``JUMP_PX`` nearer within ``radius`` px (a square
+    window), the side that fattening wrongs; pass the tower's half receptive field as ``radius``.
     """
     check_edge_weight(weight)
+    if region not in EDGE_REGIONS:
+        raise ValueError(f"the depth-edge region must be one of {EDGE_REGIONS}, got {region!r}")
     known = torch.isfinite(disparity)
     value = torch.where(known, disparity, torch.zeros_like(disparity))
-    edge = torch.zeros_like(known)
-    for dim in (1, 2):
-        a, b = known.narrow(dim, 0, known.shape[dim] - 1), known.narrow(dim, 1, known.shape[dim] - 1)
-        gap = (value.narrow(dim, 0, value.shape[dim] - 1) - value.narrow(dim, 1, value.shape[dim] - 1)).abs()
-        step = (a != b) | (a & b & (gap > JUMP_PX))
-        edge.narrow(dim, 0, edge.shape[dim] - 1).logical_or_(step)
-        edge.narrow(dim, 1, edge.shape[dim] - 1).logical_or_(step)
-    near = F.max_pool2d(edge[:, None].float(), 2 * radius + 1, stride=1, padding=radius)[:, 0] > 0
+    if region == "far":
+        labelled = torch.where(known, disparity, torch.full_like(disparity, -torch.inf))
+        nearest = F.max_pool2d(labelled[:, None], 2 * radius + 1, stride=1, padding=radius)[:, 0]
+        near = known & (nearest > value + JUMP_PX)
+    else:
+        edge = torch.zeros_like(known)
+        for dim in (1, 2):
+            a, b = known.narrow(dim, 0, known.shape[dim] - 1), known.narrow(dim, 1, known.shape[dim] - 1)
+            gap = (value.narrow(dim, 0, value.shape[dim] - 1)
+                   - value.narrow(dim, 1, value.shape[dim] - 1)).abs()
+            step = (a != b) | (a & b & (gap > JUMP_PX))
+            edge.narrow(dim, 0, edge.shape[dim] - 1).logical_or_(step)
+            edge.narrow(dim, 1, edge.shape[dim] - 1).logical_or_(step)
+        near = F.max_pool2d(edge[:, None].float(), 2 * radius + 1, stride=1, padding=radius)[:, 0] > 0
     b, y, x = pixels.unbind(1)
     return 1.0 + weight * near[b, y, x].float()
 

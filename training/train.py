@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from training.data.evaluation_only import CONES_SPEC
-from training.losses import LABELS
+from training.losses import EDGE_REGIONS, LABELS
 from training.networks import DEFAULT_CONFIG, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
 from training.trainer import TrainConfig, train
@@ -75,6 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--edge-weight", type=float, default=0.0, metavar="W",
                         help="dense mode: pixels within 3 px of a depth edge weigh 1 + W in the loss "
                              "(default 0: the paper's plain mean)")
+    parser.add_argument("--edge-region", choices=EDGE_REGIONS, default="both",
+                        help="where --edge-weight applies: both sides of a depth edge within 3 px, or the "
+                             "far side only, out to half the towers' receptive field (the background pixels "
+                             "a nearer surface's fattening reaches; docs/training.md)")
     parser.add_argument("--rectification-error", action="store_true",
                         help="synthetic data: misalign each right view vertically by up to ~1 px (shift, "
                              "rotation, scale: training.data.synthetic.Rectification)")
@@ -158,6 +162,8 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
+    if args.edge_region != "both" and not args.edge_weight:
+        return f"--edge-region {args.edge_region} only says where --edge-weight applies; give a weight > 0"
     # (--edge-weight, --vignetting, --clean-views, --curved-surfaces, --fine-textures and
     # --downsampled-views are checked where they are used, NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
@@ -220,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
-                         edge_weight=args.edge_weight, rectification_error=args.rectification_error,
+                         edge_weight=args.edge_weight, edge_region=args.edge_region,
+                         rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,
                          downsampled_views=args.downsampled_views,

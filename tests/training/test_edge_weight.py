@@ -41,6 +41,34 @@ def test_a_slanted_surface_is_not_an_edge_but_an_occlusion_border_is() -> None:
         depth_edge_weights(occluded, _all_pixels(1, 9, 20), weight=-1.0)
 
 
+def test_the_far_region_is_the_background_a_nearer_surface_reaches() -> None:
+    disparity = torch.full((1, 9, 30), 5.0)
+    disparity[:, 3:6, 12:16] = 20.0                  # a nearer block: rows 3-5, columns 12-15
+    disparity[:, :, 25] = math.nan                   # an unlabelled column far from it
+    weights = depth_edge_weights(disparity, _all_pixels(1, 9, 30), weight=3.0, radius=2,
+                                 region="far").view(9, 30)
+    heavy = weights == 4.0
+    expected = torch.zeros(9, 30, dtype=torch.bool)
+    expected[1:8, 10:18] = True                      # the block dilated by the radius ...
+    expected[3:6, 12:16] = False                     # ... less the block itself (the near side)
+    assert bool((heavy == expected).all())
+    assert bool((weights[~heavy] == 1.0).all())
+    # Unlike "both", an unlabelled column is no edge here, and a step of JUMP_PX or less is no surface.
+    assert bool((weights[:, 22:29] == 1.0).all())
+    ramp = torch.arange(30, dtype=torch.float32).expand(1, 9, 30) * 0.5
+    assert depth_edge_weights(ramp, _all_pixels(1, 9, 30), weight=3.0, radius=4, region="far").eq(1.0).all()
+    with pytest.raises(ValueError, match="region must be one of"):
+        depth_edge_weights(disparity, _all_pixels(1, 9, 30), weight=3.0, region="near")
+
+
+def test_the_objective_reaches_as_far_as_the_towers_see() -> None:
+    model = build_tower_pair("11-5conv", channels=4, shared=True)
+    assert Objective(model, mode="dense", edge_weight=4.0).edge_radius == 3
+    assert Objective(model, mode="dense", edge_weight=4.0, edge_region="far").edge_radius == 5
+    with pytest.raises(ValueError, match="edge_region must be one of"):
+        Objective(model, mode="dense", edge_weight=4.0, edge_region="near")
+
+
 def test_the_objective_is_the_weighted_mean_of_eq_18() -> None:
     torch.manual_seed(0)
     model = build_tower_pair("9-4conv", channels=8, shared=True)
@@ -91,6 +119,11 @@ def test_the_trainer_takes_the_weight_and_refuses_a_negative_one(tmp_path, capsy
                        "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--val-every", "1",
                        "--val-pairs", "1", "--cones", "", "--edge-weight", "-1", "--out", str(tmp_path)]) == 1
     assert "depth-edge weight must be >= 0" in capsys.readouterr().err
+    assert train_main(["--config", "9-4conv", "--channels", "4", "--shared", "--iterations", "1",
+                       "--batch-size", "1", "--crop", "48", "96", "--max-disparity", "16", "--val-every", "1",
+                       "--val-pairs", "1", "--cones", "", "--edge-region", "far",
+                       "--out", str(tmp_path / "far")]) == 2
+    assert "give a weight > 0" in capsys.readouterr().err and not (tmp_path / "far").exists()
 
 
 def _chunk_command_lines(tmp_path, **env: str) -> list:

@@ -57,6 +57,7 @@ class TrainConfig:
     augmentation: str = DEFAULT_AUGMENTATION
     label: str = "paper"                # a key of training.losses.LABELS: eq. (19) on the rounded truth
     edge_weight: float = 0.0            # extra loss weight within 3 px of a depth edge (0: the paper's mean)
+    edge_region: str = "both"           # training.losses.EDGE_REGIONS: where edge_weight applies
     rectification_error: bool = False   # synthetic right views slightly misaligned (batches.BatchSpec)
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
@@ -141,7 +142,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         step = checkpoint.step
         wall_before = float(checkpoint.training["wall_time_s"]) if checkpoint.training else 0.0
         best = checkpoint.config.get("best")
-    objective = Objective(model, mode=config.mode, label=config.label, edge_weight=config.edge_weight)
+    objective = Objective(model, mode=config.mode, label=config.label, edge_weight=config.edge_weight,
+                          edge_region=config.edge_region)
     wrapped = DistributedDataParallel(objective) if world > 1 else objective
     history = out / "history.jsonl"
     if rank == 0:

@@ -9,13 +9,20 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from training.losses import LABELS, check_edge_weight, dense_candidates, depth_edge_weights, matching_loss
+from training.losses import (
+    EDGE_REGIONS,
+    LABELS,
+    check_edge_weight,
+    dense_candidates,
+    depth_edge_weights,
+    matching_loss,
+)
 from training.networks import TowerPair, dense_features
 
 
 class Objective(nn.Module):
     def __init__(self, model: TowerPair, *, mode: str, label: str = "paper",
-                 edge_weight: float = 0.0) -> None:
+                 edge_weight: float = 0.0, edge_region: str = "both") -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
@@ -28,8 +35,13 @@ class Objective(nn.Module):
         if mode == "patch" and len(set(model.left.patch_shape)) > 1:
             raise ValueError(f"patch mode cuts square patches; {model.config.name} is anisotropic "
                              "(--mode dense)")
+        if edge_region not in EDGE_REGIONS:
+            raise ValueError(f"edge_region must be one of {EDGE_REGIONS}, got {edge_region!r}")
         check_edge_weight(edge_weight)
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
+        # "far" reaches as far as the towers see: half the receptive field (the larger side).
+        self.edge_region = edge_region
+        self.edge_radius = 3 if edge_region == "both" else max(model.left.patch_shape) // 2
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
                 ) -> tuple[torch.Tensor, int]:
@@ -54,6 +66,7 @@ class Objective(nn.Module):
         if not self.edge_weight:
             return matching_loss(logits, inside, shift=shift, shape=shape), int(pixels.shape[0])
         # Pixels near depth edges count (1 + edge_weight) times: the weighted mean of eq. (18).
-        weights = depth_edge_weights(target, pixels, weight=self.edge_weight)
+        weights = depth_edge_weights(target, pixels, weight=self.edge_weight, radius=self.edge_radius,
+                                     region=self.edge_region)
         losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
         return (weights * losses).sum() / weights.sum(), int(pixels.shape[0])
