@@ -144,13 +144,20 @@ def check_edge_weight(weight: float) -> None:
         raise ValueError(f"the depth-edge weight must be >= 0 and finite, got {weight}")
 
 
-# Where the depth-edge weight applies: "both" sides of an edge within a fixed radius, or the "far" side
+# Where the depth-edge weight applies: "both" sides of an edge within EDGE_RADIUS_PX, or the "far" side
 # only, out to the tower's reach (the background pixels whose window a nearer surface enters).
 EDGE_REGIONS = ("both", "far")
+EDGE_RADIUS_PX = 3
+
+
+def check_edge_region(region: str) -> None:
+    """Refuse a depth-edge region that is not one of :data:`EDGE_REGIONS`."""
+    if region not in EDGE_REGIONS:
+        raise ValueError(f"edge_region must be one of {EDGE_REGIONS}, got {region!r}")
 
 
 def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight: float,
-                       radius: int = 3, region: str = "both") -> torch.Tensor:
+                       radius: int = EDGE_RADIUS_PX, region: str = "both") -> torch.Tensor:
     """Per-example loss weights [M]: ``1 + weight`` on the pixels of ``region``, else 1.
 
     ``disparity`` [B, H, W] (NaN unknown), ``pixels`` [M, 3] the (b, y, x) of the examples, as
@@ -162,8 +169,7 @@ def depth_edge_weights(disparity: torch.Tensor, pixels: torch.Tensor, *, weight:
     window), the side that fattening wrongs; pass the tower's half receptive field as ``radius``.
     """
     check_edge_weight(weight)
-    if region not in EDGE_REGIONS:
-        raise ValueError(f"the depth-edge region must be one of {EDGE_REGIONS}, got {region!r}")
+    check_edge_region(region)
     known = torch.isfinite(disparity)
     value = torch.where(known, disparity, torch.zeros_like(disparity))
     if region == "far":

@@ -10,8 +10,9 @@ import torch
 from torch import nn
 
 from training.losses import (
-    EDGE_REGIONS,
+    EDGE_RADIUS_PX,
     LABELS,
+    check_edge_region,
     check_edge_weight,
     dense_candidates,
     depth_edge_weights,
@@ -35,13 +36,12 @@ class Objective(nn.Module):
         if mode == "patch" and len(set(model.left.patch_shape)) > 1:
             raise ValueError(f"patch mode cuts square patches; {model.config.name} is anisotropic "
                              "(--mode dense)")
-        if edge_region not in EDGE_REGIONS:
-            raise ValueError(f"edge_region must be one of {EDGE_REGIONS}, got {edge_region!r}")
+        check_edge_region(edge_region)
         check_edge_weight(edge_weight)
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
         # "far" reaches as far as the towers see: half the receptive field (the larger side).
         self.edge_region = edge_region
-        self.edge_radius = 3 if edge_region == "both" else max(model.left.patch_shape) // 2
+        self.edge_radius = EDGE_RADIUS_PX if edge_region == "both" else max(model.left.patch_shape) // 2
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, target: torch.Tensor
                 ) -> tuple[torch.Tensor, int]:
