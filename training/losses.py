@@ -117,21 +117,29 @@ def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
     batch, _, height, width = features_left.shape
     if disparity.shape != (batch, height, width):
         raise ValueError(f"disparity {tuple(disparity.shape)} must be [B, H, W] = {(batch, height, width)}")
-    known = torch.isfinite(disparity)
-    truth = rounded_disparity(torch.where(known, disparity, torch.zeros_like(disparity)))
-    columns = torch.arange(width, device=disparity.device).expand(batch, height, width)
-    match = columns - truth
-    used = known & (match >= 0) & (match < width)
-    b, y, x = used.nonzero(as_tuple=True)
+    pixels, truth, shift = labelled_pixels(disparity)
+    b, y, x = pixels.unbind(1)
     # Every left pixel of a row against every right pixel of the same row: [B, H, W, W].
     products = torch.einsum("bchw,bchv->bhwv", features_left, features_right)
     rows = products[b, y, x]                                                  # [M, W]
     offsets = torch.arange(-half_range, half_range + 1, device=disparity.device)
-    candidate_columns = match[b, y, x][:, None] + offsets[None, :]           # [M, K]
+    candidate_columns = (x - truth)[:, None] + offsets[None, :]              # [M, K]
     inside = (candidate_columns >= 0) & (candidate_columns < width)
     scores = rows.gather(1, candidate_columns.clamp(0, width - 1))
+    return temperature * scores, inside, pixels, shift
+
+
+def labelled_pixels(disparity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The pixels of ``disparity`` [B, H, W] (NaN unknown) that are training examples: truth known and
+    the match ``x - round(d)`` inside the crop. Returns their (b, y, x) [M, 3], rounded truth [M] and
+    sub-pixel label shift [M] in candidates (``round(d) - d``)."""
+    _, _, width = disparity.shape
+    known = torch.isfinite(disparity)
+    truth = rounded_disparity(torch.where(known, disparity, torch.zeros_like(disparity)))
+    match = torch.arange(width, device=disparity.device) - truth
+    b, y, x = (known & (match >= 0) & (match < width)).nonzero(as_tuple=True)
     shift = (truth[b, y, x] - disparity[b, y, x]).float()
-    return temperature * scores, inside, torch.stack([b, y, x], dim=1), shift
+    return torch.stack([b, y, x], dim=1), truth[b, y, x], shift
 
 
 # A ground-truth disparity jump: neighbours more than this far apart (as the eval breakdown counts them).

@@ -79,6 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="where --edge-weight applies: both sides of a depth edge within 3 px, or the "
                              "far side only, out to half the towers' receptive field (the background pixels "
                              "a nearer surface's fattening reaches; docs/training.md)")
+    parser.add_argument("--sgm-loss", type=float, default=0.0, metavar="SHARE",
+                        help="dense mode: take this share (0-1) of the loss on the costs after four-path SGM "
+                             "at adsm-rf11's penalties (training.sgm_loss), the rest on the raw costs as the "
+                             "paper does; default 0")
     parser.add_argument("--rectification-error", action="store_true",
                         help="synthetic data: misalign each right view vertically by up to ~1 px (shift, "
                              "rotation, scale: training.data.synthetic.Rectification)")
@@ -227,6 +231,7 @@ def main(argv: list[str] | None = None) -> int:
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, edge_region=args.edge_region,
+                         sgm_loss=args.sgm_loss,
                          rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,

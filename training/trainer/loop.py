@@ -29,6 +29,7 @@ from training.evaluation import runtime_metrics
 from training.model_folder import load_start
 from training.networks import build_tower_pair, get_config
 from training.schedule import DEFAULT_SCHEDULE, learning_rate
+from training.sgm_loss import volume_disparities
 from training.trainer.batches import DEFAULT_AUGMENTATION, SEED_STRIDE, BatchSpec, TrainingData
 from training.trainer.objective import Objective
 from training.trainer.prefetch import StepBatches, step_batches
@@ -58,6 +59,7 @@ class TrainConfig:
     label: str = "paper"                # a key of training.losses.LABELS: eq. (19) on the rounded truth
     edge_weight: float = 0.0            # extra loss weight within 3 px of a depth edge (0: the paper's mean)
     edge_region: str = "both"           # training.losses.EDGE_REGIONS: where edge_weight applies
+    sgm_loss: float = 0.0               # share of the loss after SGM (training.sgm_loss); 0: the paper's
     rectification_error: bool = False   # synthetic right views slightly misaligned (batches.BatchSpec)
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
@@ -143,7 +145,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         wall_before = float(checkpoint.training["wall_time_s"]) if checkpoint.training else 0.0
         best = checkpoint.config.get("best")
     objective = Objective(model, mode=config.mode, label=config.label, edge_weight=config.edge_weight,
-                          edge_region=config.edge_region)
+                          edge_region=config.edge_region, sgm_share=config.sgm_loss,
+                          sgm_disparities=volume_disparities(config.max_disparity, config.crop[1]))
     wrapped = DistributedDataParallel(objective) if world > 1 else objective
     history = out / "history.jsonl"
     if rank == 0:

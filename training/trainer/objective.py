@@ -16,14 +16,18 @@ from training.losses import (
     check_edge_weight,
     dense_candidates,
     depth_edge_weights,
+    labelled_pixels,
     matching_loss,
+    rounded_disparity,
 )
 from training.networks import TowerPair, dense_features
+from training.sgm_loss import DEFAULT_PENALTIES, aggregated_losses, check_sgm_share
 
 
 class Objective(nn.Module):
     def __init__(self, model: TowerPair, *, mode: str, label: str = "paper",
-                 edge_weight: float = 0.0, edge_region: str = "both") -> None:
+                 edge_weight: float = 0.0, edge_region: str = "both", sgm_share: float = 0.0,
+                 sgm_disparities: int = 128, sgm_penalties: tuple[float, float] = DEFAULT_PENALTIES) -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
@@ -38,6 +42,11 @@ class Objective(nn.Module):
                              "(--mode dense)")
         check_edge_region(edge_region)
         check_edge_weight(edge_weight)
+        check_sgm_share(sgm_share)
+        if sgm_share and mode == "patch":
+            raise ValueError("the loss after SGM needs the dense cost volume of crops (--mode dense)")
+        # The share of the loss taken after SGM (training.sgm_loss), the rest on the raw costs.
+        self.sgm_share, self.sgm_disparities, self.sgm_penalties = sgm_share, sgm_disparities, sgm_penalties
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
         # "far" reaches as far as the towers see: half the receptive field (the larger side).
         self.edge_region = edge_region
@@ -55,18 +64,32 @@ class Objective(nn.Module):
             features_right = dense_features(self.model.right, right)
         features_left, features_right = features_left.float(), features_right.float()
         temperature = self.model.log_temperature.exp()
-        logits, inside, pixels, shift = dense_candidates(features_left, features_right, target,
-                                                  temperature=temperature)
-        if logits.shape[0] == 0:
+        if self.sgm_share < 1:
+            logits, inside, pixels, shift = dense_candidates(features_left, features_right, target,
+                                                             temperature=temperature)
+        else:   # the raw costs' candidates would go unused
+            pixels, _, shift = labelled_pixels(target)
+        if pixels.shape[0] == 0:
             # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
             # so DDP's gradient all-reduce sees the same parameters on every process.
             return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
         shape, fractional = LABELS[self.label]
         shift = shift if fractional else None
-        if not self.edge_weight:
-            return matching_loss(logits, inside, shift=shift, shape=shape), int(pixels.shape[0])
         # Pixels near depth edges count (1 + edge_weight) times: the weighted mean of eq. (18).
         weights = depth_edge_weights(target, pixels, weight=self.edge_weight, radius=self.edge_radius,
-                                     region=self.edge_region)
-        losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
-        return (weights * losses).sum() / weights.sum(), int(pixels.shape[0])
+                                     region=self.edge_region) if self.edge_weight else None
+        loss = 0.0
+        if self.sgm_share < 1:
+            losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
+            loss = (1 - self.sgm_share) * _mean(losses, weights)
+        if self.sgm_share:
+            truth = rounded_disparity(target[pixels[:, 0], pixels[:, 1], pixels[:, 2]])
+            losses = aggregated_losses(features_left, features_right, pixels, truth, temperature=temperature,
+                                       disparities=self.sgm_disparities, penalties=self.sgm_penalties,
+                                       shift=shift, shape=shape)
+            loss = loss + self.sgm_share * _mean(losses, weights)
+        return loss, int(pixels.shape[0])
+
+
+def _mean(losses: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
+    return losses.mean() if weights is None else (weights * losses).sum() / weights.sum()
