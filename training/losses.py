@@ -118,15 +118,27 @@ def dense_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
     if disparity.shape != (batch, height, width):
         raise ValueError(f"disparity {tuple(disparity.shape)} must be [B, H, W] = {(batch, height, width)}")
     pixels, truth, shift = labelled_pixels(disparity)
+    logits, inside = pixel_candidates(features_left, features_right, pixels, truth, temperature=temperature,
+                                      half_range=half_range)
+    return logits, inside, pixels, shift
+
+
+def pixel_candidates(features_left: torch.Tensor, features_right: torch.Tensor, pixels: torch.Tensor,
+                     truth: torch.Tensor, *, temperature: torch.Tensor | float, half_range: int = HALF_RANGE
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The candidate logits [M, 2 * half_range + 1] (strip order) and ``inside`` mask of the pixels
+    ``pixels`` [M, 3] (b, y, x) whose rounded disparities are ``truth`` [M], as :func:`labelled_pixels`
+    gives them; :func:`dense_candidates` is this over every labelled pixel of a crop."""
+    width = features_left.shape[3]
     b, y, x = pixels.unbind(1)
     # Every left pixel of a row against every right pixel of the same row: [B, H, W, W].
     products = torch.einsum("bchw,bchv->bhwv", features_left, features_right)
     rows = products[b, y, x]                                                  # [M, W]
-    offsets = torch.arange(-half_range, half_range + 1, device=disparity.device)
+    offsets = torch.arange(-half_range, half_range + 1, device=pixels.device)
     candidate_columns = (x - truth)[:, None] + offsets[None, :]              # [M, K]
     inside = (candidate_columns >= 0) & (candidate_columns < width)
     scores = rows.gather(1, candidate_columns.clamp(0, width - 1))
-    return temperature * scores, inside, pixels, shift
+    return temperature * scores, inside
 
 
 def labelled_pixels(disparity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -14,11 +14,10 @@ from training.losses import (
     LABELS,
     check_edge_region,
     check_edge_weight,
-    dense_candidates,
     depth_edge_weights,
     labelled_pixels,
     matching_loss,
-    rounded_disparity,
+    pixel_candidates,
 )
 from training.networks import TowerPair, dense_features
 from training.sgm_loss import DEFAULT_PENALTIES, aggregated_losses, check_sgm_share
@@ -64,11 +63,7 @@ class Objective(nn.Module):
             features_right = dense_features(self.model.right, right)
         features_left, features_right = features_left.float(), features_right.float()
         temperature = self.model.log_temperature.exp()
-        if self.sgm_share < 1:
-            logits, inside, pixels, shift = dense_candidates(features_left, features_right, target,
-                                                             temperature=temperature)
-        else:   # the raw costs' candidates would go unused
-            pixels, _, shift = labelled_pixels(target)
+        pixels, truth, shift = labelled_pixels(target)
         if pixels.shape[0] == 0:
             # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
             # so DDP's gradient all-reduce sees the same parameters on every process.
@@ -80,10 +75,11 @@ class Objective(nn.Module):
                                      region=self.edge_region) if self.edge_weight else None
         loss = 0.0
         if self.sgm_share < 1:
+            logits, inside = pixel_candidates(features_left, features_right, pixels, truth,
+                                              temperature=temperature)
             losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
             loss = (1 - self.sgm_share) * _mean(losses, weights)
         if self.sgm_share:
-            truth = rounded_disparity(target[pixels[:, 0], pixels[:, 1], pixels[:, 2]])
             losses = aggregated_losses(features_left, features_right, pixels, truth, temperature=temperature,
                                        disparities=self.sgm_disparities, penalties=self.sgm_penalties,
                                        shift=shift, shape=shape)
