@@ -1,0 +1,148 @@
+"""Rank model folders by the project's rule, with the interval the synthetic split gives each difference.
+
+    python -m export.rank service/models/adsm-fast service/models/adsm-rf11 ...   # synthetic:200
+    python -m export.rank DIR ... --pairs 20 --threads 2 --json runs/rank.json
+    python -m export.rank --report adsm-fast=fast.json --report adsm-rf11=rf11.json   # adsm eval --json
+
+The rule: every folder at its manifest's settings (penalties, steps) on the synthetic validation split,
+every ground-truth pixel counted, lowest pooled bad-2 first (EPE breaks ties). Each other folder gets its
+difference to the first with a paired bootstrap over the pairs (service/evaluation/comparison.py): its
+standard error and 95 % interval; the first's lead is *resolved* where that interval excludes 0. The
+default model is the first folder within the KITTI-size time budget, and a folder replaces the current
+default only with a resolved lead over it (a model is replaced only when it measurably improves).
+200 pairs by default: at the 20 whose figures the manifests keep and by which P1/P2 are tuned, one hard
+scene can carry a whole point, and a lead under ~1 point is rarely resolved (docs/training.md, "How far
+the split can tell two models apart").
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from service.evaluation.comparison import Difference, compare_reports
+from service.features.manifest import ModelError
+
+RANKING_PAIRS = 200
+KEY = "bad2"
+
+
+@dataclasses.dataclass(frozen=True)
+class RankedFolder:
+    """One folder's place: its pooled figures on the split and its difference to the first."""
+
+    name: str
+    bad2: float
+    bad1: float
+    epe: float
+    seconds_per_pair: float
+    versus_first: Difference | None   # None for the first
+
+    @property
+    def behind_first(self) -> bool:
+        """Whether the split tells this folder worse than the first (False for the first)."""
+        return self.versus_first is not None and self.versus_first.resolved
+
+
+def evaluate_folder(folder: str | Path, *, pairs: int = RANKING_PAIRS, threads: int | None = None
+                    ) -> dict[str, Any]:
+    """The ``adsm eval --json`` report of ``folder`` on ``synthetic:pairs`` at its manifest's settings."""
+    from service.datasets import open_dataset
+    from service.evaluation.evaluate import evaluate
+    from service.matcher import Matcher
+
+    matcher = Matcher.from_folder(folder, threads=threads)
+    matcher.warmup()
+    return evaluate(matcher, open_dataset(f"synthetic:{pairs}"))
+
+
+def rank_reports(reports: Mapping[str, Mapping[str, Any]], **bootstrap: Any) -> list[RankedFolder]:
+    """The folders of ``reports`` (NAME -> report over the same pairs) in the rule's order.
+
+    >>> pair = {"name": "p", "all": {"bad2": 0.0, "pixels": 4}}
+    >>> def report(bad2):
+    ...     pairs = [dict(pair, all={"bad2": bad2, "pixels": 4})] * 3
+    ...     figures = {"bad2": bad2, "bad1": bad2, "epe": 1.0}
+    ...     return {"all": figures, "seconds_per_pair": 0.1, "per_pair": pairs}
+    >>> [(row.name, row.behind_first) for row in rank_reports({"b": report(50.0), "a": report(25.0)})]
+    [('a', False), ('b', True)]
+    """
+    if not reports:
+        raise ValueError("nothing to rank")
+    order = sorted(reports, key=lambda name: (reports[name]["all"][KEY], reports[name]["all"]["epe"]))
+    first = reports[order[0]]
+    return [RankedFolder(name=name, bad2=float(reports[name]["all"][KEY]),
+                         bad1=float(reports[name]["all"]["bad1"]), epe=float(reports[name]["all"]["epe"]),
+                         seconds_per_pair=float(reports[name]["seconds_per_pair"]),
+                         versus_first=None if index == 0 else compare_reports(first, reports[name], KEY,
+                                                                              **bootstrap))
+            for index, name in enumerate(order)]
+
+
+def format_table(rows: Sequence[RankedFolder]) -> str:
+    """The ranking as a text table, one folder per line."""
+    lines = [f"{'folder':<24} {'bad-2 %':>8} {'bad-1 %':>8} {'EPE px':>7} {'s/pair':>7}  "
+             f"{'bad-2 vs first, SE [95 % interval]':<34} {'better on':>10}  resolved"]
+    for row in rows:
+        versus = row.versus_first
+        if versus is None:
+            against, better = "first", ""
+        else:
+            against = (f"{versus.difference:+.2f}, {versus.standard_error:.2f} "
+                       f"[{versus.low:+.2f}, {versus.high:+.2f}]")
+            better = f"{versus.other_better_pairs}/{versus.pairs}"
+        resolved = "-" if row.versus_first is None else "yes" if row.behind_first else "no"
+        lines.append(f"{row.name:<24} {row.bad2:>8.2f} {row.bad1:>8.2f} {row.epe:>7.2f} "
+                     f"{row.seconds_per_pair:>7.3f}  {against:<34} {better:>10}  {resolved}")
+    return "\n".join(lines)
+
+
+def _read_report(argument: str) -> tuple[str, dict[str, Any]]:
+    name, separator, path = argument.partition("=")
+    if not separator or not name or not path:
+        raise ValueError(f"--report takes NAME=PATH, got {argument!r}")
+    try:
+        return name, json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as error:
+        raise ValueError(f"cannot read the report {path}: {error}") from error
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m export.rank", description=__doc__.split("\n\n")[0])
+    parser.add_argument("folders", nargs="*", type=Path, help="model folders to evaluate and rank")
+    parser.add_argument("--report", action="append", default=[], metavar="NAME=PATH",
+                        help="rank an adsm eval --json report of the split instead (repeatable)")
+    parser.add_argument("--pairs", type=int, default=RANKING_PAIRS,
+                        help=f"synthetic validation pairs (default {RANKING_PAIRS})")
+    parser.add_argument("--threads", type=int, default=None, help="runtime threads (default: all CPUs)")
+    parser.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the ranking here")
+    args = parser.parse_args(argv)
+    if args.pairs < 2:
+        parser.error(f"--pairs must be >= 2 (a bootstrap over one pair says nothing), got {args.pairs}")
+    if not args.folders and not args.report:
+        parser.error("give model folders, --report NAME=PATH, or both")
+    try:
+        reports = dict(_read_report(argument) for argument in args.report)
+        for folder in args.folders:
+            if folder.name in reports:
+                raise ValueError(f"two entries are named {folder.name!r}")
+            print(f"evaluating {folder} on synthetic:{args.pairs} ...", file=sys.stderr, flush=True)
+            reports[folder.name] = evaluate_folder(folder, pairs=args.pairs, threads=args.threads)
+        rows = rank_reports(reports)
+    except (OSError, ValueError, KeyError, ModelError) as error:
+        print(f"export.rank: error: {error}", file=sys.stderr)
+        return 1
+    print(format_table(rows))
+    if args.json is not None:
+        rows_json = [dataclasses.asdict(row) | {"behind_first": row.behind_first} for row in rows]
+        args.json.write_text(json.dumps(rows_json, indent=2) + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

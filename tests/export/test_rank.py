@@ -1,0 +1,85 @@
+"""export.rank: the rule's order with the split's interval, from folders or from adsm eval reports."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from export.baseline import build_folder
+from export.rank import main, rank_reports
+
+# The synthetic validation split needs the train extra's generator (scikit-image's photographs).
+pytestmark = pytest.mark.torch
+
+
+def _report(per_pair: list[float], *, seconds: float = 0.1) -> dict:
+    pairs = [{"name": f"synthetic-{index}", "all": {"bad2": value, "pixels": 1000}}
+             for index, value in enumerate(per_pair)]
+    mean = sum(per_pair) / len(per_pair)
+    return {"all": {"bad2": mean, "bad1": mean + 5, "epe": 1.0}, "seconds_per_pair": seconds,
+            "per_pair": pairs}
+
+
+def test_the_first_is_the_lowest_bad2_and_a_lead_counts_where_its_interval_excludes_zero():
+    reports = {"noisy": _report([14.0, 7.0] * 10),        # 0.5 point behind, +-3.5 per pair: SE ~0.78
+               "best": _report([10.0] * 20),
+               "worse": _report([11.0] * 20)}               # 1 point behind on every pair: SE 0
+    rows = rank_reports(reports)
+    assert [row.name for row in rows] == ["best", "noisy", "worse"]
+    assert [row.behind_first for row in rows] == [False, False, True]
+    noisy, worse = rows[1].versus_first, rows[2].versus_first
+    assert noisy.difference == pytest.approx(0.5) and worse.difference == pytest.approx(1.0)
+    assert 0.6 < noisy.standard_error < 1.0 and not noisy.resolved
+    assert worse.standard_error == 0 and worse.resolved
+    assert rows[0].versus_first is None
+
+
+def test_reports_in_and_json_out(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    paths = {}
+    for name, values in {"a": [10.0, 12.0, 11.0], "b": [20.0, 22.0, 21.0]}.items():
+        paths[name] = tmp_path / f"{name}.json"
+        paths[name].write_text(json.dumps(_report(values)), encoding="utf-8")
+    out = tmp_path / "rank.json"
+    assert main(["--report", f"a={paths['a']}", "--report", f"b={paths['b']}", "--json", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert table.splitlines()[1].startswith("a ") and "first" in table
+    written = json.loads(out.read_text(encoding="utf-8"))
+    assert [row["name"] for row in written] == ["a", "b"]
+    assert written[1]["behind_first"] is True
+    assert written[1]["versus_first"]["difference"] == pytest.approx(10.0)
+
+
+def test_folders_are_evaluated_on_the_split(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for window in (3, 7):
+        build_folder(tmp_path / f"ncc{window}", window=window, p1=30.0, p2=360.0)
+    assert main([str(tmp_path / "ncc3"), str(tmp_path / "ncc7"), "--pairs", "2", "--threads", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert {line.split()[0] for line in lines[1:]} == {"ncc3", "ncc7"}
+    assert "1/2" in lines[2] or "0/2" in lines[2] or "2/2" in lines[2]
+
+
+@pytest.mark.parametrize(("argv", "code", "message"), [
+    ([], 2, "give model folders"),
+    (["--report", "a=REPORT", "--pairs", "1"], 2, "--pairs must be >= 2"),
+    (["--report", "nameless.json"], 1, "NAME=PATH"),
+    (["--report", "a=/nonexistent/report.json"], 1, "cannot read"),
+])
+def test_bad_input_is_one_line_not_a_traceback(argv, code, message, tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    argv = [item.replace("REPORT", str(tmp_path / "r.json")) for item in argv]
+    (tmp_path / "r.json").write_text(json.dumps(_report([1.0, 2.0])), encoding="utf-8")
+    try:
+        returned = main(argv)
+    except SystemExit as exit_:
+        returned = exit_.code
+    assert returned == code
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_a_missing_folder_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main([str(tmp_path / "nowhere"), "--pairs", "2"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("evaluating") and "export.rank: error:" in err and "Traceback" not in err
