@@ -61,7 +61,7 @@ def evaluate_folder(folder: str | Path, *, pairs: int = RANKING_PAIRS, threads: 
     return evaluate(matcher, open_dataset(f"synthetic:{pairs}"))
 
 
-def rank_reports(reports: Mapping[str, Mapping[str, Any]], **bootstrap: Any) -> list[RankedFolder]:
+def rank_reports(reports: Mapping[str, Mapping[str, Any]]) -> list[RankedFolder]:
     """The folders of ``reports`` (NAME -> report over the same pairs) in the rule's order.
 
     >>> pair = {"name": "p", "all": {"bad2": 0.0, "pixels": 4}}
@@ -76,12 +76,14 @@ def rank_reports(reports: Mapping[str, Mapping[str, Any]], **bootstrap: Any) -> 
         raise ValueError("nothing to rank")
     order = sorted(reports, key=lambda name: (reports[name]["all"][KEY], reports[name]["all"]["epe"]))
     first = reports[order[0]]
-    return [RankedFolder(name=name, bad2=float(reports[name]["all"][KEY]),
-                         bad1=float(reports[name]["all"]["bad1"]), epe=float(reports[name]["all"]["epe"]),
-                         seconds_per_pair=float(reports[name]["seconds_per_pair"]),
-                         versus_first=None if index == 0 else compare_reports(first, reports[name], KEY,
-                                                                              **bootstrap))
-            for index, name in enumerate(order)]
+    rows = []
+    for index, name in enumerate(order):
+        report, figures = reports[name], reports[name]["all"]
+        rows.append(RankedFolder(
+            name=name, bad2=float(figures[KEY]), bad1=float(figures["bad1"]), epe=float(figures["epe"]),
+            seconds_per_pair=float(report["seconds_per_pair"]),
+            versus_first=None if index == 0 else compare_reports(first, report, KEY)))
+    return rows
 
 
 def format_table(rows: Sequence[RankedFolder]) -> str:

@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-RESAMPLES = 20_000   # bootstrap draws: the interval's ends move by < 0.02 point between seeds at 100 pairs
+# Bootstrap draws: adsm-rf11 against adsm-fast on synthetic:100, seeds 0-4, moved the interval's ends by
+# < 0.02 point and the standard error by < 0.002.
+RESAMPLES = 20_000
 LEVEL = 0.95
 
 
