@@ -10,7 +10,8 @@ logit does not enter the softmax and the label is renormalised over the remainin
 
 Dense mode computes, per image row, every left-right feature product at once (``[B, H, W, W]`` floats:
 256 MiB for a 256 x 512 crop), then gathers each labelled pixel's 201 candidates: the towers run once
-per crop and every valid pixel is a training example.
+per crop and every valid pixel is a training example. The trainer takes the same loss in the banded
+form of :func:`pixel_losses`, which never gathers the candidates.
 """
 
 from __future__ import annotations
@@ -139,6 +140,47 @@ def pixel_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
     inside = (candidate_columns >= 0) & (candidate_columns < width)
     scores = rows.gather(1, candidate_columns.clamp(0, width - 1))
     return temperature * scores, inside
+
+
+def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixels: torch.Tensor,
+                 truth: torch.Tensor, *, temperature: torch.Tensor | float, shift: torch.Tensor | None = None,
+                 shape: tuple[float, ...] = SOFT_LABEL, half_range: int = HALF_RANGE) -> torch.Tensor:
+    """Eq. (18) per pixel [M]: ``matching_loss(*pixel_candidates(...), shift=shift, shape=shape,
+    reduction="none")``, computed without the candidates' [M, 2 * half_range + 1] tensors.
+
+    With the label renormalised over the candidates inside the image, the cross-entropy is
+    ``logsumexp(inside logits) - sum(label * logits)``: the first term is a masked log-sum-exp over the
+    rows of the ``[B, H, W, W]`` product volume (the candidate band is a mask on each row), the second
+    reads the label's few taps. The candidate tensors, their label, mask and softmax (each as large as
+    the volume) were most of a CPU step's time; this is the trainer's dense objective
+    (``python -m bench training_step`` measures both).
+    """
+    if half_range < 3:
+        raise ValueError(f"the label's taps reach 3 candidates from the truth; half_range {half_range} < 3")
+    batch, _, height, width = features_left.shape
+    b, y, x = pixels.unbind(1)
+    # The temperature scales one feature map, not the volume: one pass over [B, C, H, W] instead.
+    scores = torch.einsum("bchw,bchv->bhwv", features_left * temperature, features_right)
+    # Each labelled pixel's band of candidates as a mask on its row: columns within half_range of its
+    # true match (the other rows keep a band too, so no row is empty; they are never read).
+    # Two comparisons, so no integer tensor of the volume's size is made (8 bytes a cell on a GPU's batch).
+    match = torch.zeros(batch, height, width, 1, dtype=torch.long, device=scores.device)
+    match[b, y, x, 0] = x - truth
+    columns = torch.arange(width, device=scores.device)
+    band = (columns >= match - half_range) & (columns <= match + half_range)
+    normaliser = torch.logsumexp(scores.masked_fill(~band, float("-inf")), dim=-1)[b, y, x]
+    # The label's taps at offsets -3..3 from the true match: eq. (19)'s five, moved by the shift.
+    taps = soft_label(candidates=7, device=scores.device, shape=shape).expand(b.shape[0], -1)
+    if shift is not None:
+        weight = shift.abs()[:, None].to(taps.dtype)
+        towards = torch.where(shift[:, None] > 0, taps.roll(1, dims=1), taps.roll(-1, dims=1))
+        taps = (1.0 - weight) * taps + weight * towards
+    # Candidate n is column x - truth - half_range + n, so offset o from the truth is column x - truth + o.
+    tap_columns = (x - truth)[:, None] + torch.arange(-3, 4, device=scores.device)[None, :]
+    taps = taps * ((tap_columns >= 0) & (tap_columns < width))
+    taps = taps / taps.sum(dim=1, keepdim=True)
+    tap_scores = scores[b[:, None], y[:, None], x[:, None], tap_columns.clamp(0, width - 1)]
+    return normaliser - (taps * tap_scores).sum(dim=1)
 
 
 def labelled_pixels(disparity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -80,7 +80,7 @@ def test_bench_reports_bad_arguments_and_files_in_one_line(capsys):
     for argv in (["synthetic", "--pairs", "0"], ["load", "--duration", "-1"], ["load", "--clients", "0"],
                  ["temperature", "--steps", "-1"], ["runtime", "--channels", "0"],
                  ["towers", "--repeats", "0"], ["memory", "--threads", "0"], ["load", "--duration", "nan"],
-                 ["tower_scale", "--repeats", "0"]):
+                 ["tower_scale", "--repeats", "0"], ["training_step", "--rounds", "0"]):
         with pytest.raises(SystemExit) as exit_code:
             bench_main(argv)
         assert exit_code.value.code == 2, argv

@@ -12,7 +12,16 @@ import torch.nn.functional as F
 from tests.helpers import require_module
 from training.data.samples import patch_pairs, random_crop, random_patch_pairs, usable_pixels
 from training.data.synthetic import SyntheticConfig, generate
-from training.losses import dense_candidates, dense_matching_loss, matching_loss, soft_label
+from training.losses import (
+    LABELS,
+    dense_candidates,
+    dense_matching_loss,
+    labelled_pixels,
+    matching_loss,
+    pixel_candidates,
+    pixel_losses,
+    soft_label,
+)
 
 pytestmark = pytest.mark.torch
 
@@ -192,3 +201,39 @@ def test_dense_shift_points_at_the_fractional_truth():
     *_, shift = dense_candidates(features, features, truth, temperature=1.0, half_range=4)
     # Candidate index grows as disparity falls: a truth 0.25 px above its rounded value sits 0.25 before it.
     torch.testing.assert_close(shift, torch.full_like(shift, -0.25))
+
+
+@pytest.mark.parametrize("label", sorted(LABELS))
+@pytest.mark.parametrize("half_range", [3, 6, 100])
+def test_the_banded_loss_equals_the_candidates_loss_and_its_gradients(label, half_range):
+    """pixel_losses (the trainer's dense loss) is matching_loss over pixel_candidates, to float rounding:
+    every label, near the crop's edges (candidates cut off), the sub-pixel shift and the temperature's
+    gradient included."""
+    generator = torch.Generator().manual_seed(4)
+    features_left = F.normalize(torch.randn(2, 6, 5, 30, generator=generator), dim=1).requires_grad_()
+    features_right = F.normalize(torch.randn(2, 6, 5, 30, generator=generator), dim=1).requires_grad_()
+    truth = torch.rand(2, 5, 30, generator=generator) * 24
+    truth[0, 1, :7] = float("nan")
+    temperature = torch.tensor(6.0, requires_grad=True)
+    pixels, rounded, shift = labelled_pixels(truth)
+    shape, fractional = LABELS[label]
+    shift = shift if fractional else None
+    logits, inside = pixel_candidates(features_left, features_right, pixels, rounded, temperature=temperature,
+                                      half_range=half_range)
+    assert not bool(inside.all())  # some candidates fall outside the crop
+    expected = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
+    banded = pixel_losses(features_left, features_right, pixels, rounded, temperature=temperature,
+                          shift=shift, shape=shape, half_range=half_range)
+    torch.testing.assert_close(banded, expected, rtol=1e-5, atol=1e-5)
+    weights = torch.rand(expected.shape[0], generator=generator)
+    inputs = [features_left, features_right, temperature]
+    for a, b in zip(torch.autograd.grad((weights * banded).sum(), inputs),
+                    torch.autograd.grad((weights * expected).sum(), inputs), strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+
+
+def test_the_banded_loss_refuses_a_band_narrower_than_its_label():
+    features = F.normalize(torch.randn(1, 4, 2, 10, generator=torch.Generator().manual_seed(5)), dim=1)
+    pixels, truth, _ = labelled_pixels(torch.full((1, 2, 10), 1.0))
+    with pytest.raises(ValueError, match="half_range 2"):
+        pixel_losses(features, features, pixels, truth, temperature=1.0, half_range=2)

@@ -408,3 +408,18 @@ def test_bench_synthetic_times_training_examples_per_camera_draws(tmp_path) -> N
                             "--camera-draws", "1", "4", "--json", str(report)]) == 0
     examples = json.loads(report.read_text())["training_ms_per_example"]
     assert set(examples) == {"1", "4"} and all(ms > 0 for ms in examples.values())
+
+
+def test_the_training_step_benchmark_times_both_losses_and_restores_the_trainer():
+    from bench.training_step import step_seconds
+    from training.losses import pixel_losses
+    from training.trainer import objective
+
+    for loss in ("candidates", "banded"):
+        seconds = step_seconds(config="11-5conv", channels=4, batch_size=1, steps=1, threads=1, loss=loss,
+                                kept=False)
+        assert 0 < seconds < 60
+    assert objective.pixel_losses is pixel_losses  # the candidates variant's stand-in is gone again
+    with pytest.raises(ValueError, match="loss must be one of"):
+        step_seconds(config="11-5conv", channels=4, batch_size=1, steps=1, threads=1, loss="sparse",
+                      kept=False)

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from service.datasets import open_dataset
 from service.features.defaults import RUNTIME_DEFAULTS
+from training.allocator import keep_freed_memory
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.data.evaluation_only import CONES_NAME, CONES_SPEC
 from training.evaluation import runtime_metrics
@@ -98,6 +99,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
     """Run (or resume) a training; returns a summary (steps, wall time, best validation metrics)."""
     rank, world = _distributed()
     torch.set_num_threads(_threads(config, world))
+    keep_freed_memory()  # a dense CPU step otherwise page-faults its volume-sized tensors in every time
     torch.manual_seed(config.seed)
     if config.mode == "patch" and config.batch_size % 4:
         raise ValueError("patch mode takes patch pairs in groups of 4 per batch (batch size % 4 == 0)")

@@ -17,7 +17,7 @@ from training.losses import (
     depth_edge_weights,
     labelled_pixels,
     matching_loss,
-    pixel_candidates,
+    pixel_losses,
 )
 from training.networks import TowerPair, dense_features
 from training.sgm_loss import DEFAULT_PENALTIES, aggregated_losses, check_sgm_share
@@ -75,9 +75,8 @@ class Objective(nn.Module):
                                      region=self.edge_region) if self.edge_weight else None
         loss = 0.0
         if self.sgm_share < 1:
-            logits, inside = pixel_candidates(features_left, features_right, pixels, truth,
-                                              temperature=temperature)
-            losses = matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")
+            losses = pixel_losses(features_left, features_right, pixels, truth, temperature=temperature,
+                                  shift=shift, shape=shape)
             loss = (1 - self.sgm_share) * _mean(losses, weights)
         if self.sgm_share:
             losses = aggregated_losses(features_left, features_right, pixels, truth, temperature=temperature,
