@@ -5,14 +5,13 @@ from __future__ import annotations
 import ctypes
 import sys
 
-import pytest
-
+from tests.helpers import require
 from training import allocator
 
 
 def test_keep_freed_memory_sets_glibc_thresholds_on_linux():
-    if not sys.platform.startswith("linux") or not hasattr(ctypes.CDLL(None), "mallopt"):
-        pytest.skip("glibc's mallopt is not in this process")
+    require(sys.platform.startswith("linux") and hasattr(ctypes.CDLL(None), "mallopt"),
+            "glibc's mallopt (Linux with glibc)")
     assert allocator.keep_freed_memory() is True
     assert allocator.keep_freed_memory() is True  # idempotent: the trainer may call it per run
 
