@@ -172,9 +172,7 @@ def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixe
     # The label's taps at offsets -3..3 from the true match: eq. (19)'s five, moved by the shift.
     taps = soft_label(candidates=7, device=scores.device, shape=shape).expand(b.shape[0], -1)
     if shift is not None:
-        weight = shift.abs()[:, None].to(taps.dtype)
-        towards = torch.where(shift[:, None] > 0, taps.roll(1, dims=1), taps.roll(-1, dims=1))
-        taps = (1.0 - weight) * taps + weight * towards
+        taps = shifted_label(taps, shift)
     # Candidate n is column x - truth - half_range + n, so offset o from the truth is column x - truth + o.
     tap_columns = (x - truth)[:, None] + torch.arange(-3, 4, device=scores.device)[None, :]
     taps = taps * ((tap_columns >= 0) & (tap_columns < width))
