@@ -50,6 +50,7 @@ from service.features.defaults import RUNTIME_DEFAULTS
 from service.features.manifest import SCHEMA_ID, TOWER_FILES, ModelError, write_manifest
 from training.checkpoint import Checkpoint, load_checkpoint
 from training.networks import FeatureTower, TowerPair, same_padding
+from training.networks.adaptive_support import stacked_weight, taps
 from training.networks.standardization import LocalStandardization
 from training.networks.tower import NORM_EPS
 
@@ -106,9 +107,16 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
     current = "x0"
     if tower.standardize is not None:
         current = _standardization_nodes(current, tower.standardize, nodes, initializers)
+    offset = 0  # adaptive support: the input image's rows and columns cut off before this conv
     for index, conv in enumerate(fold_tower(tower)):
+        weight, kernel = conv.weight, conv.weight.shape[2:]
+        if tower.adaptive_support and kernel != (1, 1):
+            gain = float(tower.support_log_gain[index].detach().exp())
+            current = _adaptive_support_nodes(current, "x0", offset, kernel, gain, index, nodes, initializers)
+            weight = stacked_weight(torch.from_numpy(weight)).numpy()
+        offset += kernel[0] // 2
         inputs = [current, f"w{index}"]
-        initializers.append(numpy_helper.from_array(conv.weight, f"w{index}"))
+        initializers.append(numpy_helper.from_array(weight, f"w{index}"))
         if conv.bias is not None:
             initializers.append(numpy_helper.from_array(conv.bias, f"b{index}"))
             inputs.append(f"b{index}")
@@ -138,6 +146,85 @@ def tower_to_onnx(tower: FeatureTower, *, opset: int = DEFAULT_OPSET, name: str 
     model.ir_version = 8  # the oldest IR that opset 13..21 allow, so older ONNX Runtime builds load it
     onnx.checker.check_model(model, full_check=True)
     return model
+
+
+def _slice(tensor: str, name: str, starts: list[int], ends: list[int], axes: list[int],
+           nodes: list[onnx.NodeProto], initializers: list[onnx.TensorProto]) -> str:
+    """``tensor[starts:ends]`` along ``axes`` (a 0 end: to the last element), as one Slice node."""
+    last = np.iinfo(np.int64).max
+    values = {"starts": starts, "ends": [end if end else last for end in ends], "axes": axes}
+    for key, value in values.items():
+        initializers.append(numpy_helper.from_array(np.array(value, np.int64), f"{name}_{key}"))
+    nodes.append(helper.make_node("Slice", [tensor, *(f"{name}_{key}" for key in values)], [name], name=name))
+    return name
+
+
+def _tap_distances(image: str, kernel: tuple[int, int], nodes: list[onnx.NodeProto],
+                   initializers: list[onnx.TensorProto]) -> str:
+    """``[1, kh * kw, H - kh + 1, W - kw + 1]``: each tap's squared colour distance to its window's
+    centre over the whole padded image; every adaptive conv of this kernel slices its part."""
+    kh, kw = kernel
+    prefix = f"distances{kh}x{kw}"
+    if any(node.name == prefix for node in nodes):
+        return prefix
+
+    def window(name: str, row: int, column: int) -> str:
+        return _slice(image, name, [row, column], [-(kh - 1 - row), -(kw - 1 - column)], [2, 3], nodes,
+                      initializers)
+
+    centre = window(f"{prefix}_centre", kh // 2, kw // 2)
+    initializers.append(numpy_helper.from_array(np.array([1], np.int64), f"{prefix}_channel_axis"))
+    distances = []
+    for tap, (row, column) in enumerate(taps((kh, kw))):
+        name = f"{prefix}_t{tap}"
+        nodes += [helper.make_node("Sub", [window(f"{name}_image", row, column), centre], [f"{name}_diff"],
+                                   name=f"{name}_diff"),
+                  helper.make_node("Mul", [f"{name}_diff", f"{name}_diff"], [f"{name}_sq"],
+                                   name=f"{name}_sq"),
+                  helper.make_node("ReduceSum", [f"{name}_sq", f"{prefix}_channel_axis"], [f"{name}_dist"],
+                                   keepdims=1, name=f"{name}_dist")]
+        distances.append(f"{name}_dist")
+    nodes.append(helper.make_node("Concat", distances, [prefix], axis=1, name=prefix))
+    return prefix
+
+
+def _adaptive_support_nodes(source: str, image: str, offset: int, kernel: tuple[int, int], gain: float,
+                            index: int, nodes: list[onnx.NodeProto],
+                            initializers: list[onnx.TensorProto]) -> str:
+    """Conv ``index``'s taps of ``source`` weighted by their colour likeness to the centre in ``image``
+    (training.networks.adaptive_support), stacked along channels for a 1 x 1 conv; returns their name.
+
+    The softmax is written as exp / sum: every window's centre tap has distance 0, so the largest logit
+    is 0 and nothing overflows (ONNX Runtime's Softmax over channels was a fifth of the tower's time)."""
+    kh, kw = kernel
+    prefix = f"support{index}"
+    distances = _tap_distances(image, kernel, nodes, initializers)
+    if offset:
+        distances = _slice(distances, f"{prefix}_dist", [offset, offset], [-offset, -offset], [2, 3], nodes,
+                           initializers)
+    initializers += [numpy_helper.from_array(np.array([1], np.int64), f"{prefix}_channel_axis"),
+                     numpy_helper.from_array(np.array([-gain], np.float32), f"{prefix}_neg_gain"),
+                     numpy_helper.from_array(np.array([float(kh * kw)], np.float32), f"{prefix}_taps")]
+    nodes += [helper.make_node("Mul", [distances, f"{prefix}_neg_gain"], [f"{prefix}_logits"],
+                               name=f"{prefix}_logits"),
+              helper.make_node("Exp", [f"{prefix}_logits"], [f"{prefix}_exp"], name=f"{prefix}_exp"),
+              helper.make_node("ReduceSum", [f"{prefix}_exp", f"{prefix}_channel_axis"], [f"{prefix}_total"],
+                               keepdims=1, name=f"{prefix}_total"),
+              helper.make_node("Div", [f"{prefix}_taps", f"{prefix}_total"], [f"{prefix}_scale"],
+                               name=f"{prefix}_scale"),
+              helper.make_node("Mul", [f"{prefix}_exp", f"{prefix}_scale"], [f"{prefix}_weights"],
+                               name=f"{prefix}_weights")]
+    products = []
+    for tap, (row, column) in enumerate(taps((kh, kw))):
+        name = f"{prefix}_t{tap}"
+        weight = _slice(f"{prefix}_weights", f"{name}_w", [tap], [tap + 1], [1], nodes, initializers)
+        shifted = _slice(source, f"{name}_x", [row, column], [-(kh - 1 - row), -(kw - 1 - column)], [2, 3],
+                         nodes, initializers)
+        nodes.append(helper.make_node("Mul", [shifted, weight], [f"{name}_wx"], name=f"{name}_wx"))
+        products.append(f"{name}_wx")
+    nodes.append(helper.make_node("Concat", products, [f"{prefix}_taps_stacked"], axis=1,
+                                  name=f"{prefix}_taps_stacked"))
+    return f"{prefix}_taps_stacked"
 
 
 def _standardization_nodes(source: str, standardize: LocalStandardization, nodes: list[onnx.NodeProto],
@@ -196,7 +283,9 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
                        f"{model.channels} features, {'shared' if model.shared else 'separate'} "
                        "left/right weights"
                        + (f", input standardised over {model.standardize_window}x{model.standardize_window} "
-                          "windows in the graph" if model.standardize_window else ""),
+                          "windows in the graph" if model.standardize_window else "")
+                       + (", conv taps weighted by colour likeness to the centre (adaptive support)"
+                          if model.adaptive_support else ""),
         "config": model.config.name,
         "channels": model.channels,
         "receptive_field": model.receptive_field,

@@ -47,6 +47,7 @@ class Checkpoint:
         model = build_tower_pair(self.spec["config"], channels=int(self.spec["channels"]),
                                  shared=bool(self.spec["shared"]),
                                  standardize_window=int(self.spec.get("standardize_window", 0)),
+                                 adaptive_support=bool(self.spec.get("adaptive_support", False)),
                                  learn_temperature=bool(self.spec.get("learn_temperature", True)))
         model.load_state_dict(self.state_dict)
         return model.eval()

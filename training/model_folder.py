@@ -87,9 +87,11 @@ def checkpoint_from_folder(folder: str | Path) -> Checkpoint:
                          f"{TRAINER_INPUT}")
     left_graph = read_graph(folder / "left.onnx")
     window = _standardize_window(left_graph)
+    adaptive = any(name.startswith("support") for name in _initializers(left_graph))
     try:
         model = build_tower_pair(manifest["config"], channels=int(manifest["channels"]),
-                                 shared=bool(manifest["shared_towers"]), standardize_window=window)
+                                 shared=bool(manifest["shared_towers"]), standardize_window=window,
+                                 adaptive_support=adaptive)
     except (KeyError, ValueError) as error:
         raise ValueError(f"{folder}: {name} is not an ADSM tower folder ({error})") from None
     _unfold(model.left, left_graph, folder / "left.onnx")
@@ -137,6 +139,14 @@ def _unfold(tower: FeatureTower, graph: onnx.ModelProto, path: Path) -> None:
         weight = torch.from_numpy(weights[f"w{index}"].astype(np.float32))
         if isinstance(conv, nn.ConvTranspose2d):  # export: transpose(0, 1).flip(2, 3); undo it
             weight = weight.flip(2, 3).transpose(0, 1)
+        gain = weights.get(f"support{index}_neg_gain")
+        if gain is not None:  # adaptive support: the taps stacked for a 1 x 1 conv; unstack them
+            out_channels, (kh, kw) = conv.weight.shape[0], conv.kernel_size
+            if weight.numel() != conv.weight.numel():
+                raise ValueError(f"{path}: w{index} {tuple(weight.shape)} does not fit the "
+                                 f"{tower.config.name} tower's {tuple(conv.weight.shape)} (other channels?)")
+            weight = weight.reshape(out_channels, kh, kw, -1).permute(0, 3, 1, 2)
+            tower.support_log_gain.data[index] = math.log(-float(gain[0]))
         if tuple(weight.shape) != tuple(conv.weight.shape):
             raise ValueError(f"{path}: w{index} {tuple(weight.shape)} does not fit the {tower.config.name} "
                              f"tower's {tuple(conv.weight.shape)} (other channels?)")

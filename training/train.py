@@ -24,7 +24,7 @@ import torch
 
 from training.data.evaluation_only import CONES_SPEC
 from training.losses import EDGE_REGIONS, LABELS
-from training.networks import DEFAULT_CONFIG, list_configs
+from training.networks import DEFAULT_CONFIG, build_tower_pair, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
 from training.trainer import TrainConfig, train
 from training.trainer.batches import AUGMENTATIONS, DEFAULT_AUGMENTATION
@@ -52,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--standardize-window", type=int, default=0, metavar="K",
                         help="feed the towers the image and its local KxK standardisation (odd K >= 3; "
                              "0, the default: the raw image, as the paper; docs/networks.md)")
+    parser.add_argument("--adaptive-support", action="store_true",
+                        help="weight every conv's taps by their colour likeness to the window's centre, "
+                             "one learned gain per conv (conv-only towers of odd kernels, such as 11-5conv: "
+                             "docs/networks.md)")
     parser.add_argument("--temperature", type=float, default=10.0,
                         help="initial softmax temperature of the cosine logits (learned afterwards)")
     parser.add_argument("--out", default="runs/train")
@@ -166,6 +170,12 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--{name} must be >= 1, got {value}"
     if args.workers < 0:
         return f"--workers must be >= 0, got {args.workers}"
+    if args.adaptive_support:
+        try:
+            build_tower_pair(args.config, channels=1, standardize_window=args.standardize_window,
+                             adaptive_support=True)
+        except (KeyError, ValueError) as error:
+            return f"--adaptive-support: {error}"
     if args.edge_region != "both" and not args.edge_weight:
         return f"--edge-region {args.edge_region} only says where --edge-weight applies; give a weight > 0"
     # (--edge-weight, --vignetting, --clean-views, --curved-surfaces, --fine-textures and
@@ -225,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     config = TrainConfig(config=args.config, channels=args.channels, shared=args.shared,
                          standardize_window=args.standardize_window,
+                         adaptive_support=args.adaptive_support,
                          temperature=args.temperature, data=args.data,
                          mode=args.mode, iterations=args.iterations or defaults["iterations"],
                          batch_size=args.batch_size or defaults["batch_size"], lr=args.lr,

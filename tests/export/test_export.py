@@ -87,9 +87,11 @@ def test_onnx_runtime_matches_pytorch_eval_at_odd_shapes(name: str, opset: int) 
 
 
 def _export(tmp_path: Path, *, channels: int = 4, shared: bool = False, training: dict | None = PROVENANCE,
-            standardize_window: int = 0, config: str = "29-1deconv3-4conv", **overrides) -> Path:
+            standardize_window: int = 0, config: str = "29-1deconv3-4conv", adaptive_support: bool = False,
+            **overrides) -> Path:
     pair = _with_statistics(build_tower_pair(config, channels=channels, shared=shared,
-                                             standardize_window=standardize_window))
+                                             standardize_window=standardize_window,
+                                             adaptive_support=adaptive_support))
     checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=training,
                                  metrics={"synthetic": {"epe": 3.5}}, deploy={"trained_range": [0, 96]})
     return export_folder(checkpoint, tmp_path / "Model_A", command="test", **overrides).parent
@@ -236,6 +238,27 @@ def test_input_standardization_exports_equal_and_the_runtime_measures_its_recept
     assert "standardised over 5x5 windows" in manifest["description"]
     matcher = Matcher.from_folder(folder, threads=1)
     matcher.warmup()  # measures the towers' reach against receptive_field (service.features.towers)
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
+    assert matcher(left, np.roll(left, -5, axis=1)).disparity.shape == (40, 64)
+
+
+def test_adaptive_support_exports_equal_and_runs_in_the_matcher(tmp_path: Path) -> None:
+    pair = _with_statistics(build_tower_pair("11-5conv", channels=5, adaptive_support=True))
+    with torch.no_grad():
+        pair.left.support_log_gain.copy_(torch.tensor([1.0, 2.0, 3.0, 2.5, 0.5]))
+    for opset in (13, 17, 21):
+        model = tower_to_onnx(pair.left, opset=opset)
+        assert {"Exp", "Slice"} <= {node.op_type for node in model.graph.node}
+        for height, width in [(1, 1), (9, 40), (31, 77)]:
+            image = torch.rand(1, 3, height, width)
+            with torch.no_grad():
+                expected = dense_features(pair.left, image).numpy()
+            assert _relative_error(_ort_features(model, image), expected) < 1e-4
+    folder = _export(tmp_path, channels=4, shared=True, config="11-5conv", adaptive_support=True)
+    assert "adaptive support" in load_manifest(folder)["description"]
+    matcher = Matcher.from_folder(folder, threads=1)
+    matcher.warmup()
     rng = np.random.default_rng(0)
     left = rng.integers(0, 256, (40, 64, 3), dtype=np.uint8)
     assert matcher(left, np.roll(left, -5, axis=1)).disparity.shape == (40, 64)

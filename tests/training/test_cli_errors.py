@@ -53,6 +53,8 @@ def test_a_checkpoint_missing_its_keys_is_refused_in_one_line(tmp_path):
     (["--device", "meta"], "--device must be cpu or cuda[:N]"),
     # Spent minutes generating 100000 crops, then died of memory.
     (["--batch-size", "100000"], "GiB per process (the B x H x W x W matching scores"),
+    (["--adaptive-support", "--config", "13-1deconv3-4conv"], "adaptive support needs a conv-only tower"),
+    (["--adaptive-support", "--standardize-window", "5"], "with input standardisation"),
 ])
 def test_train_refuses_bad_numbers_and_devices_before_writing(tmp_path, capsys, argv, message):
     out = tmp_path / "run"

@@ -36,24 +36,32 @@ def _random_statistics(pair: TowerPair) -> TowerPair:
     return pair.eval()
 
 
-def _folder(tmp_path: Path, config: str, *, shared: bool, standardize_window: int = 0) -> tuple[Path, object]:
+def _folder(tmp_path: Path, config: str, *, shared: bool, standardize_window: int = 0,
+            adaptive_support: bool = False) -> tuple[Path, object]:
     pair = _random_statistics(build_tower_pair(config, channels=5, shared=shared,
-                                               standardize_window=standardize_window))
+                                               standardize_window=standardize_window,
+                                               adaptive_support=adaptive_support))
+    if adaptive_support:
+        with torch.no_grad():
+            pair.left.support_log_gain.copy_(torch.tensor([1.0, 2.0, 3.0, 2.5, 0.5]))
     checkpoint = save_checkpoint(tmp_path / "model.pt", model=pair, step=5, training=PROVENANCE,
                                  deploy={"trained_range": [0, 96]})
     return export_folder(checkpoint, tmp_path / "folder", command="test").parent, pair
 
 
 @pytest.mark.parametrize(
-    ("config", "shared", "window"),
-    [("13-1deconv3-4conv", True, 0), ("11-5conv", False, 0), ("11-5conv", True, 5)],
+    ("config", "shared", "window", "adaptive"),
+    [("13-1deconv3-4conv", True, 0, False), ("11-5conv", False, 0, False), ("11-5conv", True, 5, False),
+     ("11-5conv", True, 0, True)],
 )
 def test_rebuilt_towers_compute_the_folders_features(tmp_path: Path, config: str, shared: bool,
-                                                     window: int) -> None:
-    folder, original = _folder(tmp_path, config, shared=shared, standardize_window=window)
+                                                     window: int, adaptive: bool) -> None:
+    folder, original = _folder(tmp_path, config, shared=shared, standardize_window=window,
+                               adaptive_support=adaptive)
     checkpoint = checkpoint_from_folder(folder)
     assert checkpoint.spec["config"] == config and checkpoint.spec["shared"] == shared
     assert checkpoint.spec["standardize_window"] == window and checkpoint.spec["channels"] == 5
+    assert checkpoint.spec["adaptive_support"] == adaptive
     rebuilt = checkpoint.build_model()
     image = torch.rand(1, 3, 23, 41)
     with torch.no_grad():

@@ -24,8 +24,8 @@ class TowerPair(nn.Module):
     """``.left`` and ``.right`` feature towers (the same module when ``shared``) and a temperature."""
 
     def __init__(self, config_name: str, *, channels: int = 64, shared: bool = False,
-                 standardize_window: int = 0, temperature: float = INITIAL_TEMPERATURE,
-                 learn_temperature: bool = True) -> None:
+                 standardize_window: int = 0, adaptive_support: bool = False,
+                 temperature: float = INITIAL_TEMPERATURE, learn_temperature: bool = True) -> None:
         super().__init__()
         if temperature <= 0:
             raise ValueError(f"temperature must be > 0, got {temperature}")
@@ -33,9 +33,12 @@ class TowerPair(nn.Module):
         self.channels = channels
         self.shared = shared
         self.standardize_window = standardize_window
-        self.left = FeatureTower(self.config, channels=channels, standardize_window=standardize_window)
+        self.adaptive_support = adaptive_support
+        self.left = FeatureTower(self.config, channels=channels, standardize_window=standardize_window,
+                                 adaptive_support=adaptive_support)
         self.right = self.left if shared else FeatureTower(self.config, channels=channels,
-                                                           standardize_window=standardize_window)
+                                                           standardize_window=standardize_window,
+                                                           adaptive_support=adaptive_support)
         # Log-parametrised so that it stays positive and its gradient scales with its size.
         log_t = torch.tensor(math.log(temperature))
         if learn_temperature:
@@ -57,9 +60,10 @@ class TowerPair(nn.Module):
 
     def spec(self) -> dict[str, object]:
         """What rebuilds this module (stored in checkpoints): config name, channels, sharing, input
-        standardisation window (0: none; checkpoints without the key have none), temperature."""
+        standardisation window (0: none; checkpoints without the key have none), adaptive support (likewise
+        off when absent), temperature."""
         return {"config": self.config.name, "channels": self.channels, "shared": self.shared,
-                "standardize_window": self.standardize_window,
+                "standardize_window": self.standardize_window, "adaptive_support": self.adaptive_support,
                 "learn_temperature": isinstance(self.log_temperature, nn.Parameter)}
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
@@ -78,9 +82,11 @@ class TowerPair(nn.Module):
 
 
 def build_tower_pair(config_name: str, *, channels: int = 64, shared: bool = False,
-                     standardize_window: int = 0, temperature: float = INITIAL_TEMPERATURE,
-                     learn_temperature: bool = True) -> TowerPair:
+                     standardize_window: int = 0, adaptive_support: bool = False,
+                     temperature: float = INITIAL_TEMPERATURE, learn_temperature: bool = True) -> TowerPair:
     """The trainable left/right towers for a named config (see :func:`training.networks.list_configs`);
-    ``standardize_window`` k > 0 adds the in-graph local input standardisation (docs/networks.md)."""
+    ``standardize_window`` k > 0 adds the in-graph local input standardisation, ``adaptive_support`` the
+    image-weighted conv taps (docs/networks.md)."""
     return TowerPair(config_name, channels=channels, shared=shared, standardize_window=standardize_window,
-                     temperature=temperature, learn_temperature=learn_temperature)
+                     adaptive_support=adaptive_support, temperature=temperature,
+                     learn_temperature=learn_temperature)

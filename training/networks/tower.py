@@ -13,6 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from training.networks.adaptive_support import adaptive_conv, initial_log_gain, support_weights
 from training.networks.configs import TowerConfig
 from training.networks.standardization import LocalStandardization
 
@@ -34,15 +35,26 @@ class FeatureTower(nn.Module):
 
     ``standardize_window`` k > 0 (the project's extension) feeds the first layer the image and its local
     k x k standardisation (:class:`LocalStandardization`, 6 channels); the receptive field grows by k - 1.
+
+    ``adaptive_support`` (the project's extension) weights every conv's taps by their colour likeness to
+    the window's centre in the input image, with one learned gain per conv
+    (:mod:`training.networks.adaptive_support`); conv-only towers of odd kernels, raw input.
     """
 
-    def __init__(self, config: TowerConfig, *, channels: int = 64, standardize_window: int = 0) -> None:
+    def __init__(self, config: TowerConfig, *, channels: int = 64, standardize_window: int = 0,
+                 adaptive_support: bool = False) -> None:
         super().__init__()
         if channels < 1:
             raise ValueError(f"channels must be >= 1, got {channels}")
+        if adaptive_support and (config.deconv_kernels or standardize_window
+                                 or any(k % 2 == 0 for k in sum(config.kernel_shapes, ()))):
+            raise ValueError(f"adaptive support needs a conv-only tower of odd kernels on the raw image; "
+                             f"{config.name}{' with input standardisation' if standardize_window else ''} "
+                             "is not")
         self.config = config
         self.channels = channels
         self.standardize_window = standardize_window
+        self.adaptive_support = adaptive_support
         self.standardize = LocalStandardization(standardize_window) if standardize_window else None
         layers: list[nn.Module] = []
         in_channels = 6 if self.standardize is not None else 3
@@ -58,6 +70,9 @@ class FeatureTower(nn.Module):
                     layers.append(nn.ReLU(inplace=True))
             in_channels = channels
         self.layers = nn.Sequential(*layers)
+        if adaptive_support:
+            convs = len(config.conv_kernels)
+            self.support_log_gain = nn.Parameter(torch.full((convs,), initial_log_gain()))
 
     @property
     def patch(self) -> int:
@@ -81,7 +96,27 @@ class FeatureTower(nn.Module):
             raise ValueError(f"input {tuple(image.shape[2:])} is smaller than the {height}x{width} patch")
         if self.standardize is not None:
             image = self.standardize(image)
+        if self.adaptive_support:
+            return l2_normalize(self._adaptive_layers(image))
         return l2_normalize(self.layers(image))
+
+    def _adaptive_layers(self, image: torch.Tensor) -> torch.Tensor:
+        """``self.layers`` with each conv's taps weighted by the image (valid convs of odd kernels: the
+        input of a conv is the image cropped by the kernels' half-sizes before it)."""
+        features, row, column, conv = image, 0, 0, 0
+        for module in self.layers:
+            if not isinstance(module, nn.Conv2d):
+                features = module(features)
+                continue
+            kh, kw = module.kernel_size
+            if kh * kw == 1:
+                features = module(features)
+            else:
+                guide = image[:, :, row:row + features.shape[2], column:column + features.shape[3]]
+                support = support_weights(guide, (kh, kw), self.support_log_gain[conv].exp())
+                features = adaptive_conv(features, module.weight, support)
+            row, column, conv = row + kh // 2, column + kw // 2, conv + 1
+        return features
 
     def conv_weight_count(self) -> int:
         """Conv and deconv weights (the count of Tables 4 and 5; BN parameters excluded)."""

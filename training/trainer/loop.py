@@ -45,6 +45,7 @@ class TrainConfig:
     channels: int = 64
     shared: bool = False
     standardize_window: int = 0         # in-graph local input standardisation (0: raw RGB, as the paper)
+    adaptive_support: bool = False      # conv taps weighted by colour likeness to the centre (extension)
     temperature: float = 10.0           # initial softmax temperature (learned afterwards)
     data: str = "synthetic"
     mode: str = "dense"
@@ -123,6 +124,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         raise ValueError(f"--device {config.device}: this torch build sees no CUDA device")
     model = build_tower_pair(config.config, channels=config.channels, shared=config.shared,
                              standardize_window=config.standardize_window,
+                             adaptive_support=config.adaptive_support,
                              temperature=config.temperature).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     out = Path(config.out)
@@ -212,8 +214,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
 
 def _check_resumable(saved: dict[str, Any], mine: dict[str, Any], resume: str) -> None:
     """A resumed run must build the very network the checkpoint holds (its weights load as they are)."""
-    keys = ("config", "channels", "shared", "standardize_window")
-    defaults = {"standardize_window": 0}  # checkpoints from before the option have none
+    keys = ("config", "channels", "shared", "standardize_window", "adaptive_support")
+    defaults = {"standardize_window": 0, "adaptive_support": False}  # checkpoints from before the options
     differ = [f"{key} {saved.get(key, defaults.get(key))!r} (this run: {mine[key]!r})" for key in keys
               if saved.get(key, defaults.get(key)) != mine[key]]
     if differ:

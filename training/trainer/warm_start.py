@@ -7,7 +7,8 @@ slots and small random values elsewhere; new BN channels get a small scale, so t
 close to the narrow one's function (as Net2Net's function-preserving widening) but the new channels can
 still grow: with exact zeros their gradients would be zero forever. A checkpoint of raw-image towers
 starts a model with input standardisation the same way: its first layer's 3 input channels are the
-image's, and the 3 standardised ones start small.
+image's, and the 3 standardised ones start small. Plain towers start towers with adaptive support at the
+initial gain (:mod:`training.networks.adaptive_support`), so the image weights apply from the first step.
 """
 
 from __future__ import annotations
@@ -33,12 +34,18 @@ def warm_start(model: TowerPair, checkpoint_path: str, *, generator: torch.Gener
     if saved_window not in (0, model.standardize_window):
         raise ValueError(f"--init-from {checkpoint_path}: standardisation window {saved_window} differs from "
                          f"the model's {model.standardize_window}")
+    if bool(checkpoint.spec.get("adaptive_support", False)) and not model.adaptive_support:
+        raise ValueError(f"--init-from {checkpoint_path}: its towers weigh their taps by the image "
+                         "(adaptive support); give --adaptive-support")
     if int(checkpoint.spec["channels"]) > model.channels:
         raise ValueError(f"--init-from {checkpoint_path}: {checkpoint.spec['channels']} channels cannot "
                          f"initialise a narrower model ({model.channels})")
     state = model.state_dict()
     widened = {}
     for name, target in state.items():
+        if name not in checkpoint.state_dict and name.endswith("support_log_gain"):
+            widened[name] = target.clone()  # plain towers gain adaptive support at its initial gain
+            continue
         source = checkpoint.state_dict[name]
         if source.shape == target.shape:
             widened[name] = source.clone()
