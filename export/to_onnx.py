@@ -299,7 +299,8 @@ def build_manifest(checkpoint: Checkpoint, model: TowerPair, *, name: str, opset
                       "trained_range": [int(v) for v in trained_range]},
         "onnx": {"opset": opset, "precision": "fp32",
                  "exporter": f"export.to_onnx (onnx {onnx.__version__} helper API, "
-                             f"torch {torch.__version__})"},
+                             f"torch {torch.__version__})",
+                 **({"adaptive_support": True} if model.adaptive_support else {})},
         "training": checkpoint.training,
         "build": {"command": command, "date": datetime.now(UTC).isoformat(timespec="seconds"),
                   "checkpoint": checkpoint_path, "step": checkpoint.step,

@@ -29,6 +29,10 @@ from service.features.scale import scaled_halo, upsample, upsampled_size
 # the fp32 base is 256, not 128.
 _WORK_BASE = {"int8": 1024, "fp32": 256}
 _WORK_PER_CHANNEL = 8
+# Graphs with adaptive support (manifest onnx.adaptive_support) hold each 3x3 conv's nine weighted taps and
+# their concatenation, 2 x 9 x 4 bytes per channel, beside the plain graph's work: an 11-5conv folder of
+# 32 channels ran out of a plain graph's budget on Motorcycle (thirty-fourth session).
+_WORK_PER_CHANNEL_ADAPTIVE = _WORK_PER_CHANNEL + 2 * 9 * 4
 
 # Largest work area of one tower run. 640 MiB lets adsm-fast-int8 (of the fast models, the one with the
 # most work per pixel) run a KITTI-size image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the
@@ -61,7 +65,8 @@ def work_bytes_per_pixel(manifest: dict[str, Any]) -> int:
     """Bound on ONNX Runtime's work area per padded pixel of one tower run of this model."""
     precision = str(manifest.get("onnx", {}).get("precision", "fp32"))
     base = _WORK_BASE.get(precision, max(_WORK_BASE.values()))
-    return base + _WORK_PER_CHANNEL * int(manifest["channels"])
+    adaptive = bool(manifest.get("onnx", {}).get("adaptive_support", False))
+    return base + (_WORK_PER_CHANNEL_ADAPTIVE if adaptive else _WORK_PER_CHANNEL) * int(manifest["channels"])
 
 
 def halo_of(manifest: dict[str, Any]) -> int:

@@ -20,6 +20,7 @@ from export.to_onnx import export_folder, fold_tower, main, tower_to_onnx
 from service.cli import main as adsm
 from service.features import ModelError, load_manifest
 from service.features.manifest import SCHEMA_PATH
+from service.features.tiles import work_bytes_per_pixel
 from service.features.towers import FeatureTowers
 from service.matcher import Matcher
 from training.checkpoint import save_checkpoint
@@ -256,7 +257,11 @@ def test_adaptive_support_exports_equal_and_runs_in_the_matcher(tmp_path: Path) 
                 expected = dense_features(pair.left, image).numpy()
             assert _relative_error(_ort_features(model, image), expected) < 1e-4
     folder = _export(tmp_path, channels=4, shared=True, config="11-5conv", adaptive_support=True)
-    assert "adaptive support" in load_manifest(folder)["description"]
+    manifest = load_manifest(folder)
+    assert "adaptive support" in manifest["description"] and manifest["onnx"]["adaptive_support"] is True
+    plain = {**manifest, "onnx": {key: value for key, value in manifest["onnx"].items()
+                                  if key != "adaptive_support"}}
+    assert work_bytes_per_pixel(manifest) > work_bytes_per_pixel(plain)
     matcher = Matcher.from_folder(folder, threads=1)
     matcher.warmup()
     rng = np.random.default_rng(0)
