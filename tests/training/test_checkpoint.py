@@ -37,7 +37,7 @@ def test_round_trip_restores_model_optimizer_and_records(tmp_path: Path) -> None
     assert not list(path.parent.glob("*.tmp"))
     checkpoint = load_checkpoint(path)
     assert checkpoint.spec == {"config": "29-1deconv3-4conv", "channels": 3, "shared": False,
-                               "standardize_window": 0, "learn_temperature": True}
+                               "standardize_window": 0, "adaptive_support": False, "learn_temperature": True}
     assert (checkpoint.step, checkpoint.metrics, checkpoint.training) == (1, {"cones": {"bad2": 40.0}},
                                                                           PROVENANCE)
     assert checkpoint.config == {"lr": 1e-3} and checkpoint.deploy["trained_range"] == [0, 64]
