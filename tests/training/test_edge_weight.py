@@ -139,34 +139,38 @@ def _chunk_command_lines(tmp_path, **env: str) -> list:
     return [build_parser().parse_args(shlex.split(line)[3:]) for line in printed.splitlines()]
 
 
-def test_the_prepared_gpu_chunk_runs_the_edge_weight_alone_and_plans_name_others(tmp_path):
-    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 11-px tower at edge weight 4
-    alone, four camera draws per scene, on a 28000-step schedule that its time budget cuts to the other
-    arm's device time (the twenty-seventh session's run: DRAWS=1, 14000 steps, .gpu/long), resumed from
-    its own folder; PLAN names other runs (the twenty-third session's call: the weight against its
-    control, the same seed, steps and schedule)."""
+def test_the_prepared_gpu_chunk_runs_the_wider_11px_tower_alone_and_plans_name_others(tmp_path):
+    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 11-px tower with 48 channels at
+    edge weight 4 alone, one camera draw per scene, the 14000 steps of its 32-channel arm (the
+    twenty-seventh session's run, PLAN=k11-w4, .gpu/long), resumed from its own folder; PLAN names other
+    runs (the twenty-third session's call: the weight against its control, the same seed, steps and
+    schedule) and their channels (32 unless a run says cN)."""
     from training.train import argument_problem
 
     (alone,) = _chunk_command_lines(tmp_path, WORKERS="15")
-    assert (alone.config, alone.edge_weight, alone.out) == ("11-5conv", 4.0, ".gpu/draws4/k11-w4")
+    assert (alone.config, alone.channels, alone.edge_weight, alone.out) == (
+        "11-5conv", 48, 4.0, ".gpu/c48/k11c48-w4")
+    assert alone.camera_draws == 1
     pair = _chunk_command_lines(tmp_path, PLAN="k17-w4 k17-w0", ITERATIONS="5000", RUNS=".gpu/runs",
                                 WORKERS="7")
-    assert [(args.config, args.edge_weight) for args in pair] == [
-        ("13-1deconv3-4conv", 4.0), ("13-1deconv3-4conv", 0.0)]
-    for args, iterations, workers in [(alone, 28000, 15), *((args, 5000, 7) for args in pair)]:
+    assert [(args.config, args.channels, args.edge_weight) for args in pair] == [
+        ("13-1deconv3-4conv", 32, 4.0), ("13-1deconv3-4conv", 32, 0.0)]
+    for args, iterations, workers in [(alone, 14000, 15), *((args, 5000, 7) for args in pair)]:
         assert argument_problem(args) is None
         assert (args.device, args.resume, args.schedule, args.seed, args.iterations, args.workers) == (
             "cuda", "auto", "cosine", 0, iterations, workers)
         assert args.time_budget == 420
     assert [args.out for args in pair] == [".gpu/runs/k17-w4", ".gpu/runs/k17-w0"]
-    four = _chunk_command_lines(tmp_path, PLAN="k11-w4 k11-w0 k17-w4 k17-w0", ITERATIONS="9000")
-    assert [(args.config, args.edge_weight, args.iterations) for args in four] == [
-        ("11-5conv", 4.0, 9000), ("11-5conv", 0.0, 9000), ("13-1deconv3-4conv", 4.0, 9000),
-        ("13-1deconv3-4conv", 0.0, 9000)]
-    assert alone.camera_draws == 4 and all(args.camera_draws == 4 for args in four)
-    (control,) = _chunk_command_lines(tmp_path, DRAWS="1", ITERATIONS="14000", RUNS=".gpu/long")
-    assert (control.camera_draws, control.iterations, control.out) == (1, 14000, ".gpu/long/k11-w4")
-    assert argument_problem(control) is None  # the equal-time A/B's other arm, as it ran
+    four = _chunk_command_lines(tmp_path, PLAN="k11-w4 k11c16-w0 k17c64-w4 k17-w0", ITERATIONS="9000",
+                                DRAWS="4")
+    assert [(args.config, args.channels, args.edge_weight, args.iterations) for args in four] == [
+        ("11-5conv", 32, 4.0, 9000), ("11-5conv", 16, 0.0, 9000), ("13-1deconv3-4conv", 64, 4.0, 9000),
+        ("13-1deconv3-4conv", 32, 0.0, 9000)]
+    assert all(args.camera_draws == 4 for args in four)
+    (control,) = _chunk_command_lines(tmp_path, PLAN="k11-w4", RUNS=".gpu/long")
+    assert (control.channels, control.camera_draws, control.iterations, control.out) == (
+        32, 1, 14000, ".gpu/long/k11-w4")
+    assert argument_problem(control) is None  # the A/B's other arm, as it ran
 
 
 def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):
@@ -177,4 +181,10 @@ def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):
     refused = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")], capture_output=True,
                              text=True, cwd=ROOT, env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path),
                                                        "DRY_RUN": "1", "PLAN": "k17-w4 k13-w0"})
-    assert refused.returncode == 2 and "'k13-w0' is not TOWER-wWEIGHT" in refused.stderr
+    assert refused.returncode == 2 and "'k13-w0' is not TOWER[cCHANNELS]-wWEIGHT" in refused.stderr
+    for plan in ("k11c0-w4", "k11c-w4", "k11c48w4"):
+        refused = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")],
+                                 capture_output=True, text=True, cwd=ROOT,
+                                 env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "DRY_RUN": "1",
+                                      "PLAN": plan})
+        assert refused.returncode == 2 and f"'{plan}' is not" in refused.stderr
