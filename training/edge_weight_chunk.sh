@@ -61,8 +61,8 @@ sys.exit('synthetic' not in {p.name for p in e(group='adsm.datasets')})"; then
 fi
 pids=()
 for run in "${plan[@]}"; do
-    if [[ ! $run =~ ^(k11|k17)(c([1-9][0-9]*))?-w([0-9]+)$ ]]; then
-        echo "PLAN: '$run' is not TOWER[cCHANNELS]-wWEIGHT with TOWER k11 or k17" >&2
+    if [[ ! $run =~ ^(k[0-9]+)(c([1-9][0-9]*))?-w([0-9]+)$ || -z ${CONFIG[${BASH_REMATCH[1]}]:-} ]]; then
+        echo "PLAN: '$run' is not TOWER[cCHANNELS]-wWEIGHT with TOWER one of: ${!CONFIG[*]}" >&2
         exit 2
     fi
     tower=${BASH_REMATCH[1]} channels=${BASH_REMATCH[3]:-32} weight=${BASH_REMATCH[4]}
