@@ -1,5 +1,5 @@
 """Under Numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``, test_simulated.py), make its shared arrays
-race-free.
+race-free, and give SGM lines the smallest block that covers their disparities.
 
 The simulator runs a block's threads as Python threads and hands each ``cuda.shared.array`` call the array
 its source line allocated first, but it checks and records that allocation without a lock: two threads
@@ -7,6 +7,13 @@ that reach the line together can each create one, and the kernel's threads then 
 arrays. With the fast thread switching test_simulated.py asks for, that happened in CI (the SGM kernel's
 first rows differed; the same kernels are bit-equal on an H100). This wraps the same lookup in a lock;
 nothing changes outside the simulator.
+
+The simulator runs every thread of a block as a Python thread and wakes each one at every barrier, so an
+SGM line's time grows with its block, and the one-warp floor of ``sgm.threads_for`` (32 threads for the
+tests' 5 or 6 disparities) made the SGM kernel ~85 % of the simulated pipeline tests. Here the default block
+is the power of two from 8 that covers the disparities (8 for those tests, the same as on a GPU from 128
+disparities); the same kernel, barriers and min-reduction tree run, three levels deep instead of five.
+test_kernels.py still runs 32- and 128-thread lines over 260 disparities.
 """
 
 from __future__ import annotations
@@ -38,3 +45,15 @@ if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
         return array
 
     kernelapi.FakeCUDAShared.array = _shared_array
+
+    from service.cuda import sgm
+
+    _gpu_threads_for = sgm.threads_for
+
+    def _simulated_threads_for(disparities: int) -> int:
+        threads = 8
+        while threads < min(disparities, 32):
+            threads *= 2
+        return threads if threads < 32 else _gpu_threads_for(disparities)
+
+    sgm.threads_for = _simulated_threads_for

@@ -2,10 +2,11 @@
 
 CI machines have no GPU, so test_kernels.py, test_pipeline.py and test_bench_gpu.py skip there
 (tests.helpers.require_gpu); here they run in a child process with ``NUMBA_ENABLE_CUDASIM=1``, which
-executes each GPU thread as a Python thread with the same shared memory, barriers and launch geometry.
-That checks every kernel's arithmetic and synchronisation against its CPU twin, not its speed or the real
-compiler's code: those need the GPU run (docs/gpu.md). The simulator's barriers poll, so the child
-switches threads every 0.1 ms instead of 5 (9x faster here).
+executes each GPU thread as a Python thread with the same shared memory, barriers and launch geometry
+(but for SGM lines' default block: conftest.py). That checks every kernel's arithmetic and
+synchronisation against its CPU twin, not its speed or the real compiler's code: those need the GPU run
+(docs/gpu.md). The simulator's barriers poll, so the child switches threads every 0.1 ms instead of 5
+(9x faster here).
 """
 
 from __future__ import annotations
