@@ -51,9 +51,6 @@ if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
     _gpu_threads_for = sgm.threads_for
 
     def _simulated_threads_for(disparities: int) -> int:
-        threads = 8
-        while threads < min(disparities, 32):
-            threads *= 2
-        return threads if threads < 32 else _gpu_threads_for(disparities)
+        return 8 if disparities <= 8 else 16 if disparities <= 16 else _gpu_threads_for(disparities)
 
     sgm.threads_for = _simulated_threads_for
