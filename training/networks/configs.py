@@ -152,12 +152,14 @@ _TABLE7 = (
 # MC-CNN-fast's geometry (four 3x3 convs); the deconv rows follow the paper's 1Deconv&4Conv pattern.
 # 7-5conv and 5-5conv are 11-5conv with its last 3x3 convs made 1x1: the same depth and width, so a
 # receptive-field ablation changes nothing else (down to a 3x3 NCC's 5 px of context and less).
+# 11-7conv is 11-5conv with two 1x1 convs after it: depth at the same receptive field (docs/training.md,
+# "Depth at the 11-px field").
 _SMALL = (
     *(_ruled(patch, deconvs, convs, table="project extension")
       for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4))),
-    *(TowerConfig(name=f"{patch}-5conv", patch=patch, deconv_kernels=(), conv_kernels=kernels,
+    *(TowerConfig(name=f"{patch}-{len(kernels)}conv", patch=patch, deconv_kernels=(), conv_kernels=kernels,
                   deconv_relu=False, table="project extension")
-      for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)))),
+      for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)), (11, (3, 3, 3, 3, 3, 1, 1)))),
 )
 
 # Foreground fattening runs along the scanline, while averaging the sensor's noise needs pixels, not width:
