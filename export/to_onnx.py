@@ -397,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
             from export.quantize import quantize_folder
 
             int8_path = quantize_folder(args.out, Path(f"{args.out}-int8"), calibration=args.calibration,
-                                        datasets=datasets, log=print)
+                                        datasets=datasets, command=command, log=print)
             print(f"wrote {int8_path.parent} (int8)")
     except (OSError, ValueError, ModelError) as error:
         print(f"export.to_onnx: error: {error}", file=sys.stderr)

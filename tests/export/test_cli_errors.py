@@ -126,6 +126,24 @@ def test_int8_calibration_refuses_tiny_images_and_a_failure_leaves_no_half_folde
     verify_files(out, load_manifest(out))
 
 
+def test_quantize_cli_refuses_a_missing_an_int8_or_its_own_folder_and_records_its_command(tmp_path, capsys):
+    from export.quantize import main as quantize_main
+
+    for source, out, message in [(tmp_path / "nope", tmp_path / "a", "does not exist"),
+                                 (MODELS_DIR / "adsm-rf11-int8", tmp_path / "b", "is already int8"),
+                                 (MODELS_DIR / "adsm-rf11", MODELS_DIR / "adsm-rf11", "--out must differ")]:
+        assert quantize_main(["--model", str(source), "--out", str(out), "--no-measure"]) == 1
+        error = capsys.readouterr().err
+        assert error.startswith("export.quantize: error: ") and message in error and "Traceback" not in error
+        assert not out.exists() or out == MODELS_DIR / "adsm-rf11"
+    argv = ["--model", str(MODELS_DIR / "adsm-rf11"), "--out", str(tmp_path / "int8"), "--no-measure",
+            "--calibration", "skimage:brick"]
+    assert quantize_main(argv) == 0
+    manifest = load_manifest(tmp_path / "int8")
+    assert manifest["onnx"]["precision"] == "int8" and manifest["metrics"] == {}
+    assert manifest["onnx"]["quantization"]["command"] == "python -m export.quantize " + " ".join(argv)
+
+
 @pytest.mark.parametrize("trained_range", [["5", "1"], ["-5", "10"]])
 def test_a_reversed_or_negative_trained_range_is_refused(tmp_path, capsys, trained_range):
     from training.checkpoint import save_checkpoint

@@ -12,10 +12,11 @@ import onnxruntime as ort
 import pytest
 import torch
 import torch.nn.functional as F
+from onnx import helper
 from PIL import Image
 
 from export.measure import measure_folder
-from export.quantize import calibration_images, calibration_pairs, quantize_folder
+from export.quantize import calibration_images, calibration_pairs, float_nodes, quantize_folder
 from export.to_onnx import export_folder, fold_tower, main, tower_to_onnx
 from service.cli import main as adsm
 from service.features import ModelError, load_manifest
@@ -193,6 +194,27 @@ def test_int8_twin_is_qdq_and_records_its_accuracy(tmp_path: Path) -> None:
     ops = {node.op_type for node in graph.node}
     assert {"QuantizeLinear", "DequantizeLinear", "Conv"} <= ops
     assert any(init.data_type == onnx.TensorProto.INT8 for init in graph.initializer)
+    # Each conv's ReLU is folded into its uint8 output range: no float32 round trip (DequantizeLinear ->
+    # Relu -> QuantizeLinear) between two quantised convs.
+    producers = {output: node.op_type for node in graph.node for output in node.output}
+    assert [node.name for node in graph.node
+            if node.op_type == "Relu" and producers.get(node.input[0]) == "DequantizeLinear"] == []
+
+
+def test_float_nodes_are_the_first_conv_and_relus_that_follow_no_conv(tmp_path: Path) -> None:
+    weight = helper.make_tensor("w", onnx.TensorProto.FLOAT, [3, 3, 1, 1], np.ones(9, np.float32))
+    graph = helper.make_graph(
+        [helper.make_node("Conv", ["image", "w"], ["c0"], name="conv0"),
+         helper.make_node("Relu", ["c0"], ["r0"], name="relu0"),
+         helper.make_node("Conv", ["r0", "w"], ["c1"], name="conv1"),
+         helper.make_node("Relu", ["c1"], ["r1"], name="relu1"),
+         helper.make_node("Relu", ["image"], ["variance"], name="variance"),  # e.g. the standardisation's
+         helper.make_node("Add", ["r1", "variance"], ["features"], name="add")],
+        "g", [helper.make_tensor_value_info("image", onnx.TensorProto.FLOAT, [1, 3, 4, 4])],
+        [helper.make_tensor_value_info("features", onnx.TensorProto.FLOAT, [1, 3, 4, 4])], [weight])
+    path = tmp_path / "g.onnx"
+    onnx.save(helper.make_model(graph), str(path))
+    assert float_nodes(path) == ["conv0", "variance"]
 
 
 def test_random_init_export_runs_through_matcher_and_adsm_predict(tmp_path: Path) -> None:
