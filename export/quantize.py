@@ -230,7 +230,7 @@ def float_nodes(model_path: Path) -> list[str]:
     """
     graph = onnx.load(str(model_path)).graph
     producers = {output: node for node in graph.node for output in node.output}
-    keep = [first_conv(model_path)]
+    keep = [first_conv(graph, model_path)]
     for node in graph.node:
         producer = producers.get(node.input[0]) if node.input else None
         if node.op_type == "Relu" and (producer is None or producer.op_type != "Conv"):
@@ -238,7 +238,7 @@ def float_nodes(model_path: Path) -> list[str]:
     return keep
 
 
-def first_conv(model_path: Path) -> str:
+def first_conv(graph: onnx.GraphProto, model_path: Path) -> str:
     """Name of the graph's first Conv, which quantisation leaves in float32.
 
     Its outputs are differences of neighbouring pixels, small on low-contrast surfaces next to the
@@ -247,7 +247,7 @@ def first_conv(model_path: Path) -> str:
     with the first left in float32, 16.08 % (Cones 9.09). It has 3 input channels: a small share of the
     tower's work. (Percentile calibration: 19.69 %; the last conv left in float32: 19.36 %.)
     """
-    for node in onnx.load(str(model_path)).graph.node:
+    for node in graph.node:
         if node.op_type == "Conv":
             return node.name
     raise ValueError(f"{model_path} has no Conv to quantise")
