@@ -176,6 +176,7 @@ def measure(*, pairs: int = 20, windows: Sequence[int] = WINDOWS, p1_grid: Seque
     import tempfile
 
     from service.datasets import open_dataset
+    from service.features import CachedTowers, FeatureTowers
     from service.matcher import Matcher
 
     dataset = open_dataset(f"{TUNING_DATA.partition(':')[0]}:{pairs}")
@@ -189,8 +190,9 @@ def measure(*, pairs: int = 20, windows: Sequence[int] = WINDOWS, p1_grid: Seque
     with tempfile.TemporaryDirectory() as scratch:
         for window in windows:
             folder = build_folder(Path(scratch) / f"ncc-{window}", window=window).parent
+            towers = CachedTowers(FeatureTowers(folder), pairs=pairs)
             chosen, grids[window] = tune_penalties(
-                Matcher.from_folder(folder), dataset, p1_grid=p1_grid, p2_grid=p2_grid,
+                Matcher(towers), dataset, p1_grid=p1_grid, p2_grid=p2_grid,
                 log=None if log is None else (lambda row, window=window: log(f"window {window}: {row}")))
             table["windows"][str(window)] = next(
                 row for row in grids[window] if row["p1"] == chosen["p1"] and row["p2"] == chosen["p2"])

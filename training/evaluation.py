@@ -9,7 +9,6 @@ per pair. The command line over both is ``python -m training.validate``.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -19,7 +18,7 @@ import torch
 from service.datasets import StereoSample
 from service.evaluation.evaluate import evaluate
 from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
-from service.features import Towers
+from service.features import CachedTowers, Towers
 from service.features.defaults import RUNTIME_DEFAULTS
 from service.features.towers import FeatureTowers
 from service.matcher import Matcher
@@ -28,10 +27,10 @@ from training.networks.gate import NCCWindow, TextureGate, gated_features
 
 
 class TorchTowers(Towers):
-    """PyTorch towers as the Matcher's :class:`~service.features.Towers`; features of the last few pairs
-    are cached so that a P1/P2 grid runs the network once per pair."""
+    """PyTorch towers as the Matcher's :class:`~service.features.Towers` (wrap them in
+    :class:`~service.features.CachedTowers` to run a P1/P2 grid's network once per pair)."""
 
-    def __init__(self, model: TowerPair, deploy: Mapping[str, Any] | None = None, *, cache: int = 0) -> None:
+    def __init__(self, model: TowerPair, deploy: Mapping[str, Any] | None = None) -> None:
         deploy = RUNTIME_DEFAULTS.deploy(deploy)
         self.model = model
         self.manifest: dict[str, Any] = {
@@ -43,8 +42,6 @@ class TorchTowers(Towers):
         }
         self._mean = torch.tensor(deploy["input"]["mean"], dtype=torch.float32)[:, None, None]
         self._std = torch.tensor(deploy["input"]["std"], dtype=torch.float32)[:, None, None]
-        self._cache: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
-        self._cache_size = cache
 
     def _features(self, tower: torch.nn.Module, image: np.ndarray) -> np.ndarray:
         tensor = torch.from_numpy(np.ascontiguousarray(image.transpose(2, 0, 1))).float().div_(255.0)
@@ -54,20 +51,12 @@ class TorchTowers(Towers):
 
     @torch.no_grad()
     def __call__(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = hashlib.sha1(left.tobytes() + right.tobytes()).digest() if self._cache_size else b""
-        if key in self._cache:
-            return self._cache[key]
         was_training = self.model.training
         self.model.eval()
         try:
-            features = (self._features(self.model.left, left), self._features(self.model.right, right))
+            return self._features(self.model.left, left), self._features(self.model.right, right)
         finally:
             self.model.train(was_training)
-        if self._cache_size:
-            if len(self._cache) >= self._cache_size:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = features
-        return features
 
     def warmup(self) -> None:
         image = np.zeros((48, 48, 3), np.uint8)
@@ -115,5 +104,5 @@ def tune_sgm(model: TowerPair, dataset: Sequence[StereoSample], *, deploy: Mappi
              p1_grid: Sequence[float] = P1_GRID, p2_grid: Sequence[float] = P2_GRID,
              log: Callable[[str], Any] | None = None) -> tuple[dict[str, float], list[dict[str, Any]]]:
     """:func:`service.evaluation.tuning.tune_penalties` with the PyTorch towers, run once per pair."""
-    towers = TorchTowers(model, deploy, cache=len(dataset))
+    towers = CachedTowers(TorchTowers(model, deploy), pairs=len(dataset))
     return tune_penalties(Matcher(towers), dataset, p1_grid=p1_grid, p2_grid=p2_grid, log=log)

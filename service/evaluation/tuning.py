@@ -44,13 +44,17 @@ def tune_penalties(matcher: StereoFunction, dataset: Sequence[StereoSample], *,
     """The (P1, P2) of the grid (P2 >= P1) with the lowest all-pixel bad-2 on ``dataset``, and every row.
 
     ``options`` sets the other steps (default: the model's); its P1 and P2 are replaced by the grid's.
+    Only the stages after the towers depend on P1 and P2: a matcher whose towers are
+    :class:`~service.features.CachedTowers` runs them once per pair.
     """
     options = MatchOptions() if options is None else options
+    # Every grid point reads every pair: a generated split renders each pair once, not 25 times.
+    samples = [dataset[index] for index in range(len(dataset))]
     rows = []
     for p1, p2 in itertools.product(p1_grid, p2_grid):
         if p2 < p1:
             continue
-        report = evaluate(matcher, dataset, options=dataclasses.replace(options, p1=p1, p2=p2))
+        report = evaluate(matcher, samples, options=dataclasses.replace(options, p1=p1, p2=p2))
         rows.append({"p1": p1, "p2": p2, "bad2": report["all"]["bad2"], "bad3": report["all"]["bad3"],
                      "epe": report["all"]["epe"]})
         if log is not None:
