@@ -23,13 +23,14 @@ from service.features.scale import scaled_halo, upsample, upsampled_size
 # Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
 # every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
 # derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
-# they need far more than fp32 ones: adsm-fast-int8 977, adsm-paper-int8 1239, adsm-fast 166,
-# adsm-paper 574, ncc-baseline 448 bytes measured per padded pixel of a 64-row tile. A strip of 2 rows
-# needs more: adsm-fast 412 (test_thin_image_peak_stays_within_its_plan, once it became the default), so
-# the fp32 base is 256, not 128. Since each conv is quantised with its ReLU (export/quantize.py's
-# float_nodes, 2026-11-29) the int8 graphs hold no float32 requantisation tensors: adsm-fast-int8 385,
-# adsm-rf11-int8 405, adsm-paper-int8 799 (the same tile; adsm-fast 380 then). The int8 base stays 1024
-# so that the tile plans and the process bounds of docs/service.md stay as measured; lowering it is open.
+# they need far more than fp32 ones. A strip of 2 rows needed 412 with adsm-fast
+# (test_thin_image_peak_stays_within_its_plan), so the fp32 base is 256, not 128. Measured per padded
+# pixel of the largest run, above the run's inputs and outputs (2026-11-29, each int8 conv quantised with
+# its ReLU; runs/s39/int8work.py in that session): 64 x 4096 / KITTI size / 8 x 32768, adsm-paper-int8
+# 1237 / 1433 / 1208 of 1536 (two or four tiles), adsm-fast-int8 365 / 283 / 409 of 1280, adsm-rf11-int8
+# 385 / 299 / 351 of 1280, adsm-paper 565 / 336 / 489 of 768, adsm-fast 361 / 166 / 256 of 512. The
+# 64-channel int8 graph leaves no room to lower the int8 base; the 32-channel ones would, but their 8-px
+# halo makes the extra tiles nearly free.
 _WORK_BASE = {"int8": 1024, "fp32": 256}
 _WORK_PER_CHANNEL = 8
 # Graphs with adaptive support (manifest onnx.adaptive_support) hold each 3x3 conv's nine weighted taps and
