@@ -5,8 +5,8 @@ The SGM penalty rule (service.evaluation.tuning) matches the same pairs once per
 the towers run once per pair instead: on the split's 256 x 512 pairs adsm-paper-int8's towers are ~94 %
 of a pair's matching at one thread (7.5 of 8.0 s), adsm-fast's ~62 % (0.61 of 0.98 s).
 
->>> towers = CachedTowers(FeatureTowers("service/models/adsm-fast"), pairs=20)  # doctest: +SKIP
->>> matcher = Matcher(towers)                                                  # doctest: +SKIP
+>>> towers = CachedTowers(FeatureTowers("service/models/adsm-fast"), pairs=20)  # a model  # doctest: +SKIP
+>>> matcher = Matcher(towers)                           # its towers run once per pair  # doctest: +SKIP
 
 A cached pair holds both views' features, ``8 C H W`` bytes (C channels): 67 MB for a 64-channel model
 on one split pair, 1.3 GB for the 20 pairs of ``synthetic:20``. The cache keeps copies: ONNX Runtime's
