@@ -3,6 +3,7 @@
     python -m export.rank service/models/adsm-fast service/models/adsm-rf11 ...   # synthetic:200
     python -m export.rank DIR ... --pairs 20 --threads 2 --json runs/rank.json
     python -m export.rank --report adsm-fast=fast.json --report adsm-rf11=rf11.json   # adsm eval --json
+    python -m export.rank --report w32=s41.json,s42.json --report w48=w48s41.json,w48s42.json  # seeds pooled
 
 The rule: every folder at its manifest's settings (penalties, steps) on the synthetic validation split,
 every ground-truth pixel counted, lowest pooled bad-2 first (EPE breaks ties). Each other folder gets its
@@ -12,7 +13,8 @@ default model is the first folder within the KITTI-size time budget, and a folde
 default only with a resolved lead over it (a model is replaced only when it measurably improves).
 200 pairs by default: at the 20 whose figures the manifests keep and by which P1/P2 are tuned, one hard
 scene can carry a whole point, and a lead under ~1 point is rarely resolved (docs/training.md, "How far
-the split can tell two models apart").
+the split can tell two models apart"). An A/B of training recipes gives each arm several reports, one per
+training seed: they are pooled pair by pair (``pool_reports``), so the interval still resamples scenes.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from service.evaluation.comparison import Difference, compare_reports
+from service.evaluation.comparison import Difference, compare_reports, pool_reports
 from service.features.manifest import ModelError
 
 RANKING_PAIRS = 200
@@ -42,6 +44,7 @@ class RankedFolder:
     epe: float
     seconds_per_pair: float
     versus_first: Difference | None   # None for the first
+    versus_first_bad1: Difference | None = None   # the same difference of bad-1 (sub-pixel precision)
 
     @property
     def behind_first(self) -> bool:
@@ -74,6 +77,9 @@ def rank_reports(reports: Mapping[str, Mapping[str, Any]]) -> list[RankedFolder]
     """
     if not reports:
         raise ValueError("nothing to rank")
+    seeds = {name: report.get("pooled", 1) for name, report in reports.items()}
+    if len(set(seeds.values())) > 1:
+        raise ValueError(f"every entry needs as many pooled reports (seeds): {seeds}")
     order = sorted(reports, key=lambda name: (reports[name]["all"][KEY], reports[name]["all"]["epe"]))
     first = reports[order[0]]
     rows = []
@@ -82,43 +88,67 @@ def rank_reports(reports: Mapping[str, Mapping[str, Any]]) -> list[RankedFolder]
         rows.append(RankedFolder(
             name=name, bad2=float(figures[KEY]), bad1=float(figures["bad1"]), epe=float(figures["epe"]),
             seconds_per_pair=float(report["seconds_per_pair"]),
-            versus_first=None if index == 0 else compare_reports(first, report, KEY)))
+            versus_first=None if index == 0 else compare_reports(first, report, KEY),
+            versus_first_bad1=None if index == 0 else _bad1_versus(first, report)))
     return rows
+
+
+def _bad1_versus(first: Mapping[str, Any], report: Mapping[str, Any]) -> Difference | None:
+    # Reports written before the per-pair figures held bad-1 still rank by bad-2.
+    if all("bad1" in pair["all"] for pair in (*first["per_pair"], *report["per_pair"])):
+        return compare_reports(first, report, "bad1")
+    return None
+
+
+def _versus_text(versus: Difference | None) -> str:
+    if versus is None:
+        return "-"
+    return f"{versus.difference:+.2f}, {versus.standard_error:.2f} [{versus.low:+.2f}, {versus.high:+.2f}]"
 
 
 def format_table(rows: Sequence[RankedFolder]) -> str:
     """The ranking as a text table, one folder per line."""
     lines = [f"{'folder':<24} {'bad-2 %':>8} {'bad-1 %':>8} {'EPE px':>7} {'s/pair':>7}  "
-             f"{'bad-2 vs first, SE [95 % interval]':<34} {'better on':>10}  resolved"]
+             f"{'bad-2 vs first, SE [95 % interval]':<34} {'better on':>10}  resolved  "
+             f"{'bad-1 vs first, SE [95 % interval]'}"]
     for row in rows:
         versus = row.versus_first
         if versus is None:
-            against, better = "first", ""
+            against, better, against_bad1 = "first", "", ""
         else:
-            against = (f"{versus.difference:+.2f}, {versus.standard_error:.2f} "
-                       f"[{versus.low:+.2f}, {versus.high:+.2f}]")
+            against, against_bad1 = _versus_text(versus), _versus_text(row.versus_first_bad1)
             better = f"{versus.other_better_pairs}/{versus.pairs}"
         resolved = "-" if row.versus_first is None else "yes" if row.behind_first else "no"
         lines.append(f"{row.name:<24} {row.bad2:>8.2f} {row.bad1:>8.2f} {row.epe:>7.2f} "
-                     f"{row.seconds_per_pair:>7.3f}  {against:<34} {better:>10}  {resolved}")
+                     f"{row.seconds_per_pair:>7.3f}  {against:<34} {better:>10}  {resolved:<8}  "
+                     f"{against_bad1}".rstrip())
     return "\n".join(lines)
 
 
 def _read_report(argument: str) -> tuple[str, dict[str, Any]]:
-    name, separator, path = argument.partition("=")
-    if not separator or not name or not path:
-        raise ValueError(f"--report takes NAME=PATH, got {argument!r}")
+    name, separator, paths = argument.partition("=")
+    if not separator or not name or not paths or "" in paths.split(","):
+        raise ValueError(f"--report takes NAME=PATH[,PATH...], got {argument!r}")
+    reports = []
+    for path in paths.split(","):
+        try:
+            reports.append(json.loads(Path(path).read_text(encoding="utf-8")))
+        except (OSError, json.JSONDecodeError) as error:
+            raise ValueError(f"cannot read the report {path}: {error}") from error
+    if len(reports) == 1:
+        return name, reports[0]
     try:
-        return name, json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as error:
-        raise ValueError(f"cannot read the report {path}: {error}") from error
+        return name, pool_reports(reports)
+    except ValueError as error:
+        raise ValueError(f"{name}: {error}") from error
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m export.rank", description=__doc__.split("\n\n")[0])
     parser.add_argument("folders", nargs="*", type=Path, help="model folders to evaluate and rank")
-    parser.add_argument("--report", action="append", default=[], metavar="NAME=PATH",
-                        help="rank an adsm eval --json report of the split instead (repeatable)")
+    parser.add_argument("--report", action="append", default=[], metavar="NAME=PATH[,PATH...]",
+                        help="rank an adsm eval --json report of the split instead (repeatable); several "
+                             "PATHs, comma-separated, are one recipe's training seeds, pooled pair by pair")
     parser.add_argument("--pairs", type=int, default=RANKING_PAIRS,
                         help=f"synthetic validation pairs (default {RANKING_PAIRS})")
     parser.add_argument("--threads", type=int, default=None, help="runtime threads (default: all CPUs)")

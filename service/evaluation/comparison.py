@@ -88,3 +88,49 @@ def compare_reports(base: Mapping[str, Any], other: Mapping[str, Any], key: str 
     if names != other_names or not np.array_equal(pixels, other_pixels):
         raise ValueError("the two reports are not over the same pairs (names and ground truth must match)")
     return paired_difference(base_errors, other_errors, pixels, **bootstrap)
+
+
+def pool_reports(reports: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One report of several over the same pairs (a recipe's training seeds): pair by pair, the counts of
+    every rate summed and its ground-truth pixels too, so that a comparison of two pooled arms still
+    resamples scenes (each scene once, with all its seeds) rather than treating seeds as pairs.
+
+    Rates (bad-N, EPE, D1, density: every number of a pair's ``all`` but ``pixels``) become
+    pixel-weighted means, as are the pooled ``all`` and ``seconds_per_pair``.
+
+    >>> one = {"all": {"bad2": 10.0, "epe": 1.0}, "seconds_per_pair": 0.2,
+    ...        "per_pair": [{"name": "a", "all": {"bad2": 10.0, "epe": 1.0, "pixels": 8}}]}
+    >>> two = {"all": {"bad2": 30.0, "epe": 2.0}, "seconds_per_pair": 0.4,
+    ...        "per_pair": [{"name": "a", "all": {"bad2": 30.0, "epe": 2.0, "pixels": 8}}]}
+    >>> pooled = pool_reports([one, two])
+    >>> pooled["per_pair"][0]["all"], pooled["all"], pooled["seconds_per_pair"], pooled["pooled"]
+    ({'bad2': 20.0, 'epe': 1.5, 'pixels': 16}, {'bad2': 20.0, 'epe': 1.5}, 0.3, 2)
+    """
+    if not reports:
+        raise ValueError("nothing to pool")
+    first = reports[0]
+    names = [pair["name"] for pair in first["per_pair"]]
+    pixels = [pair["all"]["pixels"] for pair in first["per_pair"]]
+    for report in reports[1:]:
+        if ([pair["name"] for pair in report["per_pair"]] != names
+                or [pair["all"]["pixels"] for pair in report["per_pair"]] != pixels):
+            raise ValueError(
+                "the reports to pool are not over the same pairs (names and ground truth must match)")
+    per_pair = []
+    for index, name in enumerate(names):
+        figures = [report["per_pair"][index]["all"] for report in reports]
+        per_pair.append({"name": name, "all": _pooled_figures(figures)})
+    totals = _pooled_figures([report["all"] for report in reports])
+    seconds = sum(float(report["seconds_per_pair"]) for report in reports) / len(reports)
+    return {"all": totals, "seconds_per_pair": round(seconds, 4), "per_pair": per_pair,
+            "pooled": len(reports)}
+
+
+def _pooled_figures(figures: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    # Every report counts the same pixels, so the pixel-weighted mean of a rate is its plain mean.
+    pooled: dict[str, Any] = {key: round(sum(float(f[key]) for f in figures) / len(figures), 4)
+                              for key, value in figures[0].items()
+                              if key != "pixels" and isinstance(value, (int, float))}
+    if "pixels" in figures[0]:
+        pooled["pixels"] = sum(int(f["pixels"]) for f in figures)
+    return pooled

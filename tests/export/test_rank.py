@@ -51,6 +51,32 @@ def test_reports_in_and_json_out(tmp_path: Path, capsys: pytest.CaptureFixture[s
     assert written[1]["versus_first"]["difference"] == pytest.approx(10.0)
 
 
+def test_seeds_of_one_arm_are_pooled_and_bad1_gets_its_interval(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    # Two seeds per arm; the lever is 1 point of bad-2 (and so of bad-1) lower on every pair of both.
+    arms = {"control": [[12.0, 14.0, 13.0, 15.0], [13.0, 15.0, 12.0, 16.0]]}
+    arms["lever"] = [[value - 1 for value in seed] for seed in arms["control"]]
+    argv = []
+    for arm, seeds in arms.items():
+        paths = []
+        for index, values in enumerate(seeds):
+            report = _report(values)
+            for pair in report["per_pair"]:
+                pair["all"]["bad1"] = pair["all"]["bad2"] + 5
+            paths.append(tmp_path / f"{arm}{index}.json")
+            paths[-1].write_text(json.dumps(report), encoding="utf-8")
+        argv += ["--report", f"{arm}=" + ",".join(str(path) for path in paths)]
+    out = tmp_path / "rank.json"
+    assert main([*argv, "--json", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[1].startswith("lever ") and lines[2].startswith("control ")
+    control = json.loads(out.read_text(encoding="utf-8"))[1]
+    assert control["bad2"] == pytest.approx(13.75) and control["behind_first"] is True  # (13.5 + 14) / 2
+    for key in ("versus_first", "versus_first_bad1"):
+        assert control[key]["difference"] == pytest.approx(1.0) and control[key]["pairs"] == 4
+    assert lines[2].count("+1.00, 0.00 [+1.00, +1.00]") == 2   # bad-2 and bad-1
+
+
 def test_folders_are_evaluated_on_the_split(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     for window in (3, 7):
         build_folder(tmp_path / f"ncc{window}", window=window, p1=30.0, p2=360.0)
@@ -65,11 +91,16 @@ def test_folders_are_evaluated_on_the_split(tmp_path: Path, capsys: pytest.Captu
     (["--report", "a=REPORT", "--pairs", "1"], 2, "--pairs must be >= 2"),
     (["--report", "nameless.json"], 1, "NAME=PATH"),
     (["--report", "a=/nonexistent/report.json"], 1, "cannot read"),
+    (["--report", "a=REPORT,"], 1, "NAME=PATH[,PATH...]"),
+    (["--report", "a=REPORT,REPORT", "--report", "b=REPORT"], 1, "as many pooled reports"),
+    (["--report", "a=REPORT,OTHER"], 1, "a: the reports to pool are not over the same pairs"),
 ])
 def test_bad_input_is_one_line_not_a_traceback(argv, code, message, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
-    argv = [item.replace("REPORT", str(tmp_path / "r.json")) for item in argv]
+    argv = [item.replace("REPORT", str(tmp_path / "r.json")).replace("OTHER", str(tmp_path / "o.json"))
+            for item in argv]
     (tmp_path / "r.json").write_text(json.dumps(_report([1.0, 2.0])), encoding="utf-8")
+    (tmp_path / "o.json").write_text(json.dumps(_report([1.0, 2.0, 3.0])), encoding="utf-8")
     try:
         returned = main(argv)
     except SystemExit as exit_:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.evaluation.comparison import compare_reports, pair_errors, paired_difference
+from service.evaluation.comparison import compare_reports, pair_errors, paired_difference, pool_reports
 
 
 def _report(percent: list[float], pixels: int = 1000, names: list[str] | None = None) -> dict:
@@ -69,3 +69,40 @@ def test_reports_are_compared_pair_by_pair_and_must_hold_the_same_pairs():
         compare_reports(base, _report([1.0, 2.0, 3.0], names=["x", "y", "z"]))
     with pytest.raises(ValueError, match="same pairs"):
         compare_reports(base, _report([1.0, 2.0, 3.0], pixels=999))
+
+
+def _full_report(percent: list[float], pixels: int = 1000) -> dict:
+    report = _report(percent, pixels)
+    for pair in report["per_pair"]:
+        pair["all"]["epe"] = pair["all"]["bad2"] / 10
+    mean = float(np.mean(percent))
+    return report | {"all": {"bad2": mean, "epe": mean / 10, "pixels": pixels * len(percent)},
+                     "seconds_per_pair": 0.5}
+
+
+def test_pooling_seeds_sums_each_pairs_counts_so_the_bootstrap_still_resamples_scenes():
+    rng = np.random.default_rng(5)
+    control = [_full_report(list(rng.uniform(5, 30, 25))) for _ in range(2)]
+    lever = [_full_report(list(np.array([p["all"]["bad2"] for p in c["per_pair"]]) - 1)) for c in control]
+    base, other = pool_reports(control), pool_reports(lever)
+    assert base["pooled"] == 2 and len(base["per_pair"]) == 25
+    assert base["per_pair"][0]["all"]["pixels"] == 2000 and base["all"]["pixels"] == 50_000
+    # One point lower on every pair of both seeds: the pooled difference is -1 with no spread.
+    pooled = compare_reports(base, other)
+    assert pooled.difference == pytest.approx(-1.0) and pooled.standard_error == pytest.approx(0, abs=1e-3)
+    assert pooled.pairs == 25
+    # The pooled rate is the mean of the seeds' rates, pair by pair and in total.
+    expected = (control[0]["per_pair"][3]["all"]["bad2"] + control[1]["per_pair"][3]["all"]["bad2"]) / 2
+    assert base["per_pair"][3]["all"]["bad2"] == pytest.approx(expected, abs=1e-4)
+    assert base["all"]["bad2"] == pytest.approx((control[0]["all"]["bad2"] + control[1]["all"]["bad2"]) / 2,
+                                                abs=1e-4)
+    assert base["seconds_per_pair"] == 0.5
+
+
+def test_pooling_refuses_reports_over_other_pairs_and_nothing():
+    with pytest.raises(ValueError, match="same pairs"):
+        pool_reports([_full_report([1.0, 2.0]), _full_report([1.0, 2.0], pixels=999)])
+    with pytest.raises(ValueError, match="same pairs"):
+        pool_reports([_full_report([1.0, 2.0]), _full_report([1.0, 2.0, 3.0])])
+    with pytest.raises(ValueError, match="nothing"):
+        pool_reports([])
