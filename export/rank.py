@@ -44,7 +44,7 @@ class RankedFolder:
     epe: float
     seconds_per_pair: float
     versus_first: Difference | None   # None for the first
-    versus_first_bad1: Difference | None = None   # the same difference of bad-1 (sub-pixel precision)
+    versus_first_bad1: Difference | None   # the same of bad-1 (sub-pixel precision); None for the first
 
     @property
     def behind_first(self) -> bool:
@@ -67,9 +67,9 @@ def evaluate_folder(folder: str | Path, *, pairs: int = RANKING_PAIRS, threads: 
 def rank_reports(reports: Mapping[str, Mapping[str, Any]]) -> list[RankedFolder]:
     """The folders of ``reports`` (NAME -> report over the same pairs) in the rule's order.
 
-    >>> pair = {"name": "p", "all": {"bad2": 0.0, "pixels": 4}}
+    >>> pair = {"name": "p", "all": {"bad2": 0.0, "bad1": 0.0, "pixels": 4}}
     >>> def report(bad2):
-    ...     pairs = [dict(pair, all={"bad2": bad2, "pixels": 4})] * 3
+    ...     pairs = [dict(pair, all={"bad2": bad2, "bad1": bad2, "pixels": 4})] * 3
     ...     figures = {"bad2": bad2, "bad1": bad2, "epe": 1.0}
     ...     return {"all": figures, "seconds_per_pair": 0.1, "per_pair": pairs}
     >>> [(row.name, row.behind_first) for row in rank_reports({"b": report(50.0), "a": report(25.0)})]
@@ -89,15 +89,8 @@ def rank_reports(reports: Mapping[str, Mapping[str, Any]]) -> list[RankedFolder]
             name=name, bad2=float(figures[KEY]), bad1=float(figures["bad1"]), epe=float(figures["epe"]),
             seconds_per_pair=float(report["seconds_per_pair"]),
             versus_first=None if index == 0 else compare_reports(first, report, KEY),
-            versus_first_bad1=None if index == 0 else _bad1_versus(first, report)))
+            versus_first_bad1=None if index == 0 else compare_reports(first, report, "bad1")))
     return rows
-
-
-def _bad1_versus(first: Mapping[str, Any], report: Mapping[str, Any]) -> Difference | None:
-    # Reports written before the per-pair figures held bad-1 still rank by bad-2.
-    if all("bad1" in pair["all"] for pair in (*first["per_pair"], *report["per_pair"])):
-        return compare_reports(first, report, "bad1")
-    return None
 
 
 def _versus_text(versus: Difference | None) -> str:

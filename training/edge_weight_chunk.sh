@@ -31,7 +31,8 @@
 # to RUNS/RUN/ here, then export, tune and measure (docs/training.md).
 # Environment: PLAN the runs, each TOWER[cCHANNELS]-wWEIGHT with TOWER k11 (11-5conv) or k17
 # (13-1deconv3-4conv) and CHANNELS the feature channels (32 when left out): "k17c48-w4" the default,
-# "k11c48-w4" the 11-px tower's, "k11-w4" the twenty-seventh session's, "k17-w4" the twenty-fourth's, "k17-w4 k17-w0" the twenty-third's;
+# "k11c48-w4" the 11-px tower's, "k11-w4" the twenty-seventh session's, "k17-w4" the twenty-fourth's,
+# "k17-w4 k17-w0" the twenty-third's;
 # BUDGET seconds (420: a 530-s call holds start-up, the install and the last validation), DEVICE (cuda),
 # WORKERS batch processes per run (the cores left after one per run, shared), ITERATIONS (14000: the
 # cosine schedule's length, the same in every call of a plan), DRAWS camera draws per rendered scene

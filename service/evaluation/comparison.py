@@ -83,11 +83,18 @@ def paired_difference(base: Sequence[float] | np.ndarray, other: Sequence[float]
 def compare_reports(base: Mapping[str, Any], other: Mapping[str, Any], key: str = "bad2",
                     **bootstrap: Any) -> Difference:
     """:func:`paired_difference` of two ``adsm eval --json`` reports, which must hold the same pairs."""
-    names, base_errors, pixels = pair_errors(base, key)
-    other_names, other_errors, other_pixels = pair_errors(other, key)
-    if names != other_names or not np.array_equal(pixels, other_pixels):
-        raise ValueError("the two reports are not over the same pairs (names and ground truth must match)")
+    _require_same_pairs([base, other], "the two reports are")
+    _, base_errors, pixels = pair_errors(base, key)
+    _, other_errors, _ = pair_errors(other, key)
     return paired_difference(base_errors, other_errors, pixels, **bootstrap)
+
+
+def _require_same_pairs(reports: Sequence[Mapping[str, Any]], subject: str) -> None:
+    # Pair names and ground-truth pixel counts identify the pairs: the same split, crops and ground truth.
+    identities = [[(pair["name"], pair["all"]["pixels"]) for pair in report["per_pair"]]
+                  for report in reports]
+    if any(identity != identities[0] for identity in identities[1:]):
+        raise ValueError(f"{subject} not over the same pairs (names and ground truth must match)")
 
 
 def pool_reports(reports: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -108,18 +115,10 @@ def pool_reports(reports: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """
     if not reports:
         raise ValueError("nothing to pool")
-    first = reports[0]
-    names = [pair["name"] for pair in first["per_pair"]]
-    pixels = [pair["all"]["pixels"] for pair in first["per_pair"]]
-    for report in reports[1:]:
-        if ([pair["name"] for pair in report["per_pair"]] != names
-                or [pair["all"]["pixels"] for pair in report["per_pair"]] != pixels):
-            raise ValueError(
-                "the reports to pool are not over the same pairs (names and ground truth must match)")
-    per_pair = []
-    for index, name in enumerate(names):
-        figures = [report["per_pair"][index]["all"] for report in reports]
-        per_pair.append({"name": name, "all": _pooled_figures(figures)})
+    _require_same_pairs(reports, "the reports to pool are")
+    per_pair = [{"name": pair["name"], "all": _pooled_figures([report["per_pair"][index]["all"]
+                                                                for report in reports])}
+                for index, pair in enumerate(reports[0]["per_pair"])]
     totals = _pooled_figures([report["all"] for report in reports])
     seconds = sum(float(report["seconds_per_pair"]) for report in reports) / len(reports)
     return {"all": totals, "seconds_per_pair": round(seconds, 4), "per_pair": per_pair,

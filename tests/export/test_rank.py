@@ -15,7 +15,7 @@ pytestmark = pytest.mark.torch
 
 
 def _report(per_pair: list[float], *, seconds: float = 0.1) -> dict:
-    pairs = [{"name": f"synthetic-{index}", "all": {"bad2": value, "pixels": 1000}}
+    pairs = [{"name": f"synthetic-{index}", "all": {"bad2": value, "bad1": value + 5, "pixels": 1000}}
              for index, value in enumerate(per_pair)]
     mean = sum(per_pair) / len(per_pair)
     return {"all": {"bad2": mean, "bad1": mean + 5, "epe": 1.0}, "seconds_per_pair": seconds,
@@ -60,11 +60,8 @@ def test_seeds_of_one_arm_are_pooled_and_bad1_gets_its_interval(tmp_path: Path,
     for arm, seeds in arms.items():
         paths = []
         for index, values in enumerate(seeds):
-            report = _report(values)
-            for pair in report["per_pair"]:
-                pair["all"]["bad1"] = pair["all"]["bad2"] + 5
             paths.append(tmp_path / f"{arm}{index}.json")
-            paths[-1].write_text(json.dumps(report), encoding="utf-8")
+            paths[-1].write_text(json.dumps(_report(values)), encoding="utf-8")
         argv += ["--report", f"{arm}=" + ",".join(str(path) for path in paths)]
     out = tmp_path / "rank.json"
     assert main([*argv, "--json", str(out)]) == 0
