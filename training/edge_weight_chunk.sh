@@ -29,8 +29,8 @@
 # What comes back under $OUT: RUN/last.pt (weights and optimizer, to resume), RUN/best.pt (by the
 # trainer's 8-pair validation) where at most two runs share the call, and RUN/validation.jsonl; copy them
 # to RUNS/RUN/ here, then export, tune and measure (docs/training.md).
-# Environment: PLAN the runs, each TOWER[cCHANNELS]-wWEIGHT with TOWER k11 (11-5conv) or k17
-# (13-1deconv3-4conv) and CHANNELS the feature channels (32 when left out): "k17c48-w4" the default,
+# Environment: PLAN the runs, each TOWER[cCHANNELS]-wWEIGHT with TOWER k11 (11-5conv), k17
+# (13-1deconv3-4conv), k17d (17-8conv) or k21d (21-10conv: the deep 3x3 towers) and CHANNELS the feature channels (32 when left out): "k17c48-w4" the default,
 # "k11c48-w4" the 11-px tower's, "k11-w4" the twenty-seventh session's, "k17-w4" the twenty-fourth's,
 # "k17-w4 k17-w0" the twenty-third's;
 # BUDGET seconds (420: a 530-s call holds start-up, the install and the last validation), DEVICE (cuda),
@@ -59,14 +59,14 @@ WORKERS=${WORKERS:-$(( (cores - ${#plan[@]}) / ${#plan[@]} > 0 ? (cores - ${#pla
 files=(last.pt validation.jsonl)
 (( ${#plan[@]} <= 2 )) && files+=(best.pt)
 
-declare -A CONFIG=([k11]=11-5conv [k17]=13-1deconv3-4conv)
+declare -A CONFIG=([k11]=11-5conv [k17]=13-1deconv3-4conv [k17d]=17-8conv [k21d]=21-10conv)
 if [[ -z ${DRY_RUN:-} ]] && ! "$PYTHON" -c "from importlib.metadata import entry_points as e; import sys
 sys.exit('synthetic' not in {p.name for p in e(group='adsm.datasets')})"; then
     "$PYTHON" -m pip install -q --no-deps --no-build-isolation --no-index -e . >&2
 fi
 pids=()
 for run in "${plan[@]}"; do
-    if [[ ! $run =~ ^(k[0-9]+)(c([1-9][0-9]*))?-w([0-9]+)$ || -z ${CONFIG[${BASH_REMATCH[1]}]:-} ]]; then
+    if [[ ! $run =~ ^(k[0-9]+d?)(c([1-9][0-9]*))?-w([0-9]+)$ || -z ${CONFIG[${BASH_REMATCH[1]}]:-} ]]; then
         echo "PLAN: '$run' is not TOWER[cCHANNELS]-wWEIGHT with TOWER one of: ${!CONFIG[*]}" >&2
         exit 2
     fi

@@ -170,6 +170,9 @@ def test_the_prepared_gpu_chunk_runs_the_wider_17px_tower_alone_and_plans_name_o
         ("11-5conv", 32, 4.0, 9000), ("11-5conv", 16, 0.0, 9000), ("13-1deconv3-4conv", 64, 4.0, 9000),
         ("13-1deconv3-4conv", 32, 0.0, 9000)]
     assert all(args.camera_draws == 4 for args in four)
+    deep = _chunk_command_lines(tmp_path, PLAN="k17dc48-w4 k21d-w4")
+    assert [(args.config, args.channels, args.edge_weight) for args in deep] == [
+        ("17-8conv", 48, 4.0), ("21-10conv", 32, 4.0)]
     (control,) = _chunk_command_lines(tmp_path, PLAN="k11-w4", RUNS=".gpu/long")
     assert (control.channels, control.camera_draws, control.iterations, control.out) == (
         32, 1, 14000, ".gpu/long/k11-w4")
@@ -182,7 +185,7 @@ def test_the_prepared_gpu_chunk_refuses_a_plan_it_cannot_read(tmp_path):
     from tests.helpers import ROOT
 
     unreadable = [("k17-w4 k13-w0", "k13-w0"), ("k11c0-w4", "k11c0-w4"), ("k11c-w4", "k11c-w4"),
-                  ("k11c48w4", "k11c48w4")]
+                  ("k11c48w4", "k11c48w4"), ("k11d-w4", "k11d-w4")]
     for plan, name in unreadable:
         refused = subprocess.run(["bash", str(ROOT / "training" / "edge_weight_chunk.sh")],
                                  capture_output=True, text=True, cwd=ROOT,
