@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
-# One device call of issue 11's GPU list (docs/training.md, "The next GPU session"): by default adsm-fast's
-# 17-px tower with 48 feature channels instead of 32, from scratch with the depth-edge loss weight 4, one
-# camera draw per scene, 14000 steps (PLAN=k17c48-w4 DRAWS=1 ITERATIONS=14000 RUNS=.gpu/c48): the
-# fortieth session's two-seed CPU A/B found 48 channels 0.24 point lower on synthetic:200 at equal steps
-# ("Channels of the 17-px tower, two seeds per arm"), its int8 twin inside the default's time budget, and
-# that tower leads the split, so it is the likelier new default by the rule. Its other arm is the
-# twenty-fourth session's 14000-step run of the 32-channel tower (docs/training.md, "The weight from scratch
-# at 3x the budget"). The 11-px tower's own wider run is PLAN=k11c48-w4 (the thirty-fifth session's A/B:
-# -0.32 point; its other arm the twenty-seventh session's PLAN=k11-w4 DRAWS=1 ITERATIONS=14000
-# RUNS=.gpu/long, 487 s of training, shipped as adsm-rf11). One run alone on the machine so that it gets
-# every core's batches; a session is lent 15 minutes of device time at most, start-up included. Each run
-# stops after BUDGET seconds at the latest (validated and checkpointed), so a call that falls short is
-# continued by the next one (--resume auto): 420 s, then BUDGET=150 with carry [".gpu/c48/k17c48-w4"]
-# finishes the 14000 steps.
+# One device call of issue 11's GPU list (docs/training.md, "The next GPU session"): by default the 17-px
+# field built of eight 3x3 convs (17-8conv) with 48 feature channels, from scratch with the depth-edge loss
+# weight 4, one camera draw per scene, 14000 steps (PLAN=k17dc48-w4 DRAWS=1 ITERATIONS=14000
+# RUNS=.gpu/c48): the forty-first session's CPU A/B found 17-8conv 0.46 point lower than adsm-fast's
+# 13-1deconv3-4conv on synthetic:200 at 32 channels and equal steps (two seeds), and 0.81 lower at 48
+# (seed 41; "Eight 3x3 convs at the 17-px field"), better on both real pairs, with its int8 twin inside the
+# default's time budget, so it is the likelier new default by the rule. Its other arm is the twenty-fourth
+# session's 14000-step run of 13-1deconv3-4conv at 32 channels (docs/training.md, "The weight from scratch
+# at 3x the budget"); PLAN=k17c48-w4 is that tower at 48 channels. The 11-px tower's own wider run is
+# PLAN=k11c48-w4 (the thirty-fifth session's A/B: -0.32 point; its other arm the twenty-seventh session's
+# PLAN=k11-w4 DRAWS=1 ITERATIONS=14000 RUNS=.gpu/long, 487 s of training, shipped as adsm-rf11). One run
+# alone on the machine so that it gets every core's batches; a session is lent 15 minutes of device time at
+# most, start-up included. Each run stops after BUDGET seconds at the latest (validated and checkpointed),
+# so a call that falls short is continued by the next one (--resume auto): 420 s, then BUDGET=150 with
+# carry [".gpu/c48/k17dc48-w4"] finishes the 14000 steps.
 #
 #   run (device tool): bash training/edge_weight_chunk.sh    timeout_s 530; carry [RUNS/RUN] to resume
 #
@@ -30,9 +31,10 @@
 # trainer's 8-pair validation) where at most two runs share the call, and RUN/validation.jsonl; copy them
 # to RUNS/RUN/ here, then export, tune and measure (docs/training.md).
 # Environment: PLAN the runs, each TOWER[cCHANNELS]-wWEIGHT with TOWER k11 (11-5conv), k17
-# (13-1deconv3-4conv), k17d (17-8conv) or k21d (21-10conv: the deep 3x3 towers) and CHANNELS the feature channels (32 when left out): "k17c48-w4" the default,
-# "k11c48-w4" the 11-px tower's, "k11-w4" the twenty-seventh session's, "k17-w4" the twenty-fourth's,
-# "k17-w4 k17-w0" the twenty-third's;
+# (13-1deconv3-4conv), k17d (17-8conv) or k21d (21-10conv), and CHANNELS the feature channels (32 when
+# left out): "k17dc48-w4" the default, "k17c48-w4" adsm-fast's tower at 48 channels, "k11c48-w4" the 11-px
+# tower's, "k11-w4" the twenty-seventh session's, "k17-w4" the twenty-fourth's, "k17-w4 k17-w0" the
+# twenty-third's;
 # BUDGET seconds (420: a 530-s call holds start-up, the install and the last validation), DEVICE (cuda),
 # WORKERS batch processes per run (the cores left after one per run, shared), ITERATIONS (14000: the
 # cosine schedule's length, the same in every call of a plan), DRAWS camera draws per rendered scene
@@ -42,7 +44,7 @@
 # --val-pairs 1"), DRY_RUN=1 prints the trainer command lines instead of running them.
 set -euo pipefail
 
-PLAN=${PLAN:-k17c48-w4}
+PLAN=${PLAN:-k17dc48-w4}
 BUDGET=${BUDGET:-420}
 DEVICE=${DEVICE:-cuda}
 ITERATIONS=${ITERATIONS:-14000}

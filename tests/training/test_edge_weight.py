@@ -139,18 +139,20 @@ def _chunk_command_lines(tmp_path, **env: str) -> list:
     return [build_parser().parse_args(shlex.split(line)[3:]) for line in printed.splitlines()]
 
 
-def test_the_prepared_gpu_chunk_runs_the_wider_17px_tower_alone_and_plans_name_others(tmp_path):
-    """training/edge_weight_chunk.sh (issue 11's GPU list): by default adsm-fast's 17-px tower with 48
-    channels at edge weight 4 alone, one camera draw per scene, the 14000 steps of its 32-channel arm (the
-    twenty-fourth session's run), resumed from its own folder; PLAN names other runs (the 11-px tower's
-    wider run; the twenty-third session's call: the weight against its control, the same seed, steps and
-    schedule) and their channels (32 unless a run says cN)."""
+def test_the_prepared_gpu_chunk_runs_the_wider_3x3_17px_tower_alone_and_plans_name_others(tmp_path):
+    """training/edge_weight_chunk.sh (issue 11's GPU list): by default the 17-px field of eight 3x3 convs
+    with 48 channels at edge weight 4 alone, one camera draw per scene, the 14000 steps of adsm-fast's
+    tower's 32-channel arm (the twenty-fourth session's run), resumed from its own folder; PLAN names other
+    runs (adsm-fast's tower and the 11-px tower at 48 channels; the twenty-third session's call: the weight
+    against its control, the same seed, steps and schedule) and their channels (32 unless a run says cN)."""
     from training.train import argument_problem
 
     (alone,) = _chunk_command_lines(tmp_path, WORKERS="15")
     assert (alone.config, alone.channels, alone.edge_weight, alone.out) == (
-        "13-1deconv3-4conv", 48, 4.0, ".gpu/c48/k17c48-w4")
+        "17-8conv", 48, 4.0, ".gpu/c48/k17dc48-w4")
     assert alone.camera_draws == 1
+    (wide,) = _chunk_command_lines(tmp_path, PLAN="k17c48-w4")
+    assert (wide.config, wide.channels, wide.out) == ("13-1deconv3-4conv", 48, ".gpu/c48/k17c48-w4")
     (narrow,) = _chunk_command_lines(tmp_path, PLAN="k11c48-w4")
     assert (narrow.config, narrow.channels, narrow.iterations, narrow.out) == (
         "11-5conv", 48, 14000, ".gpu/c48/k11c48-w4")
