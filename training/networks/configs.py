@@ -158,8 +158,8 @@ _TABLE7 = (
 # convs at the 17-px field"); 21-10conv is the same at a 21-px field, at about 13-1deconv3-4conv's work.
 _SMALL = (
     *(_ruled(patch, deconvs, convs, table="project extension")
-      for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4),
-                                                (17, (), 8), (21, (), 10))),
+      for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4), (17, (), 8),
+                                    (21, (), 10))),
     *(TowerConfig(name=f"{patch}-{len(kernels)}conv", patch=patch, deconv_kernels=(), conv_kernels=kernels,
                   deconv_relu=False, table="project extension")
       for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)), (11, (3, 3, 3, 3, 3, 1, 1)))),
