@@ -52,7 +52,7 @@ def test_every_table_row_is_a_named_config() -> None:
     table7 = {f"{patch}-{row}" for patch, rows in TABLE7.items() for row in rows}
     extension = {name for name, config in CONFIGS.items() if config.table == "project extension"}
     assert extension == {"9-4conv", "11-5conv", "9-1deconv3-4conv", "13-1deconv3-4conv", "7-5conv", "5-5conv",
-                         "11-7conv", "17-8conv", "21-10conv", "21x5-1deconv3-4conv"}
+                         "11-7conv", "13-6conv", "15-7conv", "17-8conv", "21-10conv", "21x5-1deconv3-4conv"}
     # The receptive-field ablation rows differ from 11-5conv in their field only.
     for name, field in (("11-5conv", 11), ("7-5conv", 7), ("5-5conv", 5)):
         assert get_config(name).receptive_field == field and len(get_config(name).conv_kernels) == 5
@@ -62,7 +62,10 @@ def test_every_table_row_is_a_named_config() -> None:
     deep, default = get_config("17-8conv"), get_config("13-1deconv3-4conv")
     assert deep.conv_kernels == (3,) * 8 and deep.receptive_field == default.receptive_field == 17
     assert deep.conv_weight_count(32) < default.conv_weight_count(32)
-    assert get_config("21-10conv").conv_kernels == (3,) * 10 and get_config("21-10conv").receptive_field == 21
+    # The other 3x3 builds: one more conv, two more pixels of field.
+    for name, convs in (("11-5conv", 5), ("13-6conv", 6), ("15-7conv", 7), ("21-10conv", 10)):
+        config = get_config(name)
+        assert config.conv_kernels == (3,) * convs and config.receptive_field == 2 * convs + 1
     assert table1_2 | table7 | extension == names and not (table1_2 | table7) & extension
 
 

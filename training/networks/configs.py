@@ -155,11 +155,13 @@ _TABLE7 = (
 # 11-7conv is 11-5conv with two 1x1 convs after it: depth at the same receptive field (docs/training.md,
 # "Depth at the 11-px field"). 17-8conv reaches 13-1deconv3-4conv's 17-px field with eight 3x3 convs, as
 # MC-CNN-acrt builds its towers: more non-linear layers for fewer weights (docs/training.md, "Eight 3x3
-# convs at the 17-px field"); 21-10conv is the same at a 21-px field, at about 13-1deconv3-4conv's work.
+# convs at the 17-px field"); 21-10conv is the same at a 21-px field, at about 13-1deconv3-4conv's work;
+# 13-6conv and 15-7conv fill the 3x3 builds' fields between the 11-px and the 17-px tower (docs/training.md,
+# "The 3x3 builds between 11 and 17 px").
 _SMALL = (
     *(_ruled(patch, deconvs, convs, table="project extension")
-      for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4), (17, (), 8),
-                                    (21, (), 10))),
+      for patch, deconvs, convs in ((9, (), 4), (11, (), 5), (9, (3,), 4), (13, (3,), 4), (13, (), 6),
+                                    (15, (), 7), (17, (), 8), (21, (), 10))),
     *(TowerConfig(name=f"{patch}-{len(kernels)}conv", patch=patch, deconv_kernels=(), conv_kernels=kernels,
                   deconv_relu=False, table="project extension")
       for patch, kernels in ((7, (3, 3, 3, 1, 1)), (5, (3, 3, 1, 1, 1)), (11, (3, 3, 3, 3, 3, 1, 1)))),
