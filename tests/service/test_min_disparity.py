@@ -143,7 +143,7 @@ def test_matcher_against_a_numpy_reference(matcher) -> None:
     scale = float(matcher.manifest["cost"]["scale"])
     expected = 6 + np.rint(naive_volume(*features, 6, 24, scale)).argmin(axis=2)
     options = MatchOptions(max_disparity=24, min_disparity=6, sgm=False, subpixel=False, lr_check=False,
-                           fill=False, border=False, weighted_median=False)
+                           fill=False, border=False, weighted_median=False, shiftable_windows=False)
     np.testing.assert_array_equal(matcher(*shifted, options).disparity, expected)
 
 
