@@ -7,13 +7,13 @@
 # "Eight 3x3 convs at the 17-px field"), better on both real pairs, with its int8 twin at 0.92-0.95x the
 # default's KITTI-size predict, so it is the likelier new default by the rule. Its other arm is the
 # twenty-fourth session's 14000-step run of 13-1deconv3-4conv at 32 channels (docs/training.md, "The weight
-# from scratch at 3x the budget"); PLAN=k17c48-w4 is that tower at 48 channels. The 11-px tower's own wider run is
-# PLAN=k11c48-w4 (the thirty-fifth session's A/B: -0.32 point; its other arm the twenty-seventh session's
-# PLAN=k11-w4 DRAWS=1 ITERATIONS=14000 RUNS=.gpu/long, 487 s of training, shipped as adsm-rf11). One run
-# alone on the machine so that it gets every core's batches; a session is lent 15 minutes of device time at
-# most, start-up included. Each run stops after BUDGET seconds at the latest (validated and checkpointed),
-# so a call that falls short is continued by the next one (--resume auto): 420 s, then BUDGET=150 with
-# carry [".gpu/c48/k17dc48-w4"] finishes the 14000 steps.
+# from scratch at 3x the budget"); PLAN=k17c48-w4 is that tower at 48 channels. The 11-px tower's own
+# wider run is PLAN=k11c48-w4 (the thirty-fifth session's A/B: -0.32 point; its other arm the
+# twenty-seventh session's PLAN=k11-w4 DRAWS=1 ITERATIONS=14000 RUNS=.gpu/long, 487 s of training,
+# shipped as adsm-rf11). One run alone on the machine so that it gets every core's batches; a session is
+# lent 15 minutes of device time at most, start-up included. Each run stops after BUDGET seconds at the
+# latest (validated and checkpointed), so a call that falls short is continued by the next one (--resume
+# auto): 420 s, then BUDGET=150 with carry [".gpu/c48/k17dc48-w4"] finishes the 14000 steps.
 #
 #   run (device tool): bash training/edge_weight_chunk.sh    timeout_s 530; carry [RUNS/RUN] to resume
 #

@@ -23,7 +23,8 @@ def matcher() -> Matcher:
 @pytest.mark.slow
 def test_slanted_plane_bad1_below_5_percent(matcher: Matcher) -> None:
     left, right, truth, visible = slanted_plane_pair()
-    result = matcher(left, right, MatchOptions(max_disparity=32))
+    options = MatchOptions(max_disparity=32)
+    result = matcher(left, right, options)
     assert isinstance(result, StereoResult)
     assert result.disparity.shape == truth.shape and result.disparity.dtype == np.float32
     assert result.validity.dtype == np.uint8
@@ -33,7 +34,7 @@ def test_slanted_plane_bad1_below_5_percent(matcher: Matcher) -> None:
     # Sub-pixel precision: integer disparities alone would leave a mean error of ~0.25 px.
     assert np.nanmean(error) < 0.15
     # Shiftable windows run before SGM where the default model's manifest turns them on.
-    shifted = ["shiftable_windows"] if matcher.manifest["sgm"].get("shiftable_windows", False) else []
+    shifted = ["shiftable_windows"] if matcher.uses_shiftable_windows(options) else []
     assert list(result.timings)[:4 + len(shifted)] == ["towers", "cost_volume", *shifted, "sgm", "disparity"]
     assert list(result.timings)[-1] == "total"
     assert all(seconds >= 0 for seconds in result.timings.values())
