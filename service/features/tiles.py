@@ -22,26 +22,27 @@ from service.features.scale import scaled_halo, upsample, upsampled_size
 
 # Bytes of ONNX Runtime work area per padded pixel of one tower run, by precision: a bound measured on
 # every shipped model (tests/service/test_memory.py::test_tower_work_model_bounds_every_shipped_model), not
-# derived from the graph. int8 QDQ convs im2col their uint8 input (k*k*C bytes per output pixel), so
-# they need far more than fp32 ones. A strip of 2 rows needed 412 with adsm-fast
-# (test_thin_image_peak_stays_within_its_plan), so the fp32 base is 256, not 128. Measured per padded
-# pixel of the largest run, above the run's inputs and outputs (2026-11-29, each int8 conv quantised with
-# its ReLU; runs/s39/int8work.py in that session): 64 x 4096 / KITTI size / 8 x 32768, adsm-paper-int8
-# 1237 / 1433 / 1208 of 1536 (two or four tiles), adsm-fast-int8 365 / 283 / 409 of 1280, adsm-rf11-int8
-# 385 / 299 / 351 of 1280, adsm-paper 565 / 336 / 489 of 768, adsm-fast 361 / 166 / 256 of 512. The
-# 64-channel int8 graph leaves no room to lower the int8 base; the 32-channel ones would, but their 8-px
-# halo makes the extra tiles nearly free.
-_WORK_BASE = {"int8": 1024, "fp32": 256}
+# derived from the graph. int8 QDQ convs im2col their uint8 input in blocks, so their work grows with width
+# and kernel size: the bound is a base plus channels x receptive field / 2. fp32 convs need less, and a
+# strip of 2 rows needed 412 with adsm-fast (test_thin_image_peak_stays_within_its_plan), so their base is
+# 256. Measured per padded pixel of the largest run, above the run's inputs and outputs, at 64 x 4096 /
+# KITTI size / 8 x 32768 (2026-11-29, each int8 conv quantised with its ReLU; runs/s39/int8work.py then):
+# adsm-paper-int8 1237 / 1433 / 1208 (bound 1824), adsm-fast-int8 365 / 283 / 409 (656), adsm-rf11-int8
+# 385 / 299 / 351 (560), adsm-paper 565 / 336 / 489 (768), adsm-fast 361 / 166 / 256 (512); and
+# 2026-12-01, one whole run at 64 x 4096 / KITTI size: adsm-rf17-int8 436 / 454 (792), adsm-rf17 303 / 275
+# (640). Until then the int8 bound was 1024 + 8 C, set by the 64-channel graph: it split adsm-rf17-int8's
+# KITTI-size run in two, whose unequal arena plans cost 0.13 s of its 0.57 (docs/service.md, "Memory").
+_WORK_BASE = {"int8": 384, "fp32": 256}
 _WORK_PER_CHANNEL = 8
+_INT8_WORK_PER_CHANNEL_AND_FIELD_PX = 0.5
 # Graphs with adaptive support (manifest onnx.adaptive_support) hold each 3x3 conv's nine weighted taps and
 # their concatenation, 2 x 9 x 4 bytes per channel, beside the plain graph's work: an 11-5conv folder of
 # 32 channels ran out of a plain graph's budget on Motorcycle (thirty-fourth session).
 _WORK_PER_CHANNEL_ADAPTIVE = _WORK_PER_CHANNEL + 2 * 9 * 4
 
-# Largest work area of one tower run. 640 MiB lets adsm-fast-int8 (of the fast models, the one with the
-# most work per pixel) run a KITTI-size image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the
-# former row-strip budget did, while a 1080p image goes in tiles instead of two 1 Mpx strips (~1 GB of
-# arena).
+# Largest work area of one tower run. 640 MiB lets every shipped folder but adsm-paper-int8 run a KITTI-size
+# image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the former row-strip budget did, while a
+# 1080p image goes in tiles instead of two 1 Mpx strips (~1 GB of arena).
 TOWER_WORK_BYTES = 640 * 1024 * 1024
 
 
@@ -68,9 +69,15 @@ class Tile:
 def work_bytes_per_pixel(manifest: dict[str, Any]) -> int:
     """Bound on ONNX Runtime's work area per padded pixel of one tower run of this model."""
     precision = str(manifest.get("onnx", {}).get("precision", "fp32"))
-    base = _WORK_BASE.get(precision, max(_WORK_BASE.values()))
+    channels = int(manifest["channels"])
     adaptive = bool(manifest.get("onnx", {}).get("adaptive_support", False))
-    return base + (_WORK_PER_CHANNEL_ADAPTIVE if adaptive else _WORK_PER_CHANNEL) * int(manifest["channels"])
+    per_channel = _WORK_PER_CHANNEL_ADAPTIVE if adaptive else _WORK_PER_CHANNEL
+    if precision == "fp32":
+        return _WORK_BASE["fp32"] + per_channel * channels
+    # int8, and any precision not listed: the larger bound.
+    field = int(manifest["receptive_field"])
+    int8_work = _WORK_BASE["int8"] + math.ceil(_INT8_WORK_PER_CHANNEL_AND_FIELD_PX * channels * field)
+    return int8_work + (per_channel - _WORK_PER_CHANNEL) * channels
 
 
 def halo_of(manifest: dict[str, Any]) -> int:

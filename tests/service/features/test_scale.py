@@ -86,7 +86,8 @@ def test_the_memory_plan_grows_with_the_tower_scale():
     manifest = load_manifest(default_model_dir())
     one, two = (plan_request(375, 1242, 192, manifest, scale=scale) for scale in (1, 2))
     assert two.volumes == one.volumes and two.images == one.images
-    assert 3.5 * one.work_pixels < two.work_pixels <= 4 * one.work_pixels
+    # 4x the pixels; at scale 2 the towers run in tiles whose halos overlap (adsm-rf17-int8: 4.008x).
+    assert 3.5 * one.work_pixels < two.work_pixels <= 4.05 * one.work_pixels
     assert two.features > one.features and two.tower_work > one.tower_work
     assert Matcher.from_folder(None).plan(375, 1242, MatchOptions(tower_scale=2)).work_pixels == (
         plan_request(375, 1242, 128, manifest, scale=2).work_pixels)
