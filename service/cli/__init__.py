@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _version() -> str:
-    """``adsm 0.1.0 (default model adsm-fast)``: the package and the model a bare command uses, read
+    """``adsm 0.1.0 (default model adsm-rf17-int8)``: the package and the model a bare command uses, read
     without importing the runtime (a version query must not pay for ONNX Runtime or Numba)."""
     from importlib.resources import files
 

@@ -31,7 +31,8 @@ from service.features.scale import scaled_halo, upsample, upsampled_size
 # 385 / 299 / 351 (560), adsm-paper 565 / 336 / 489 (768), adsm-fast 361 / 166 / 256 (512); and
 # 2026-12-01, one whole run at 64 x 4096 / KITTI size: adsm-rf17-int8 436 / 454 (792), adsm-rf17 303 / 275
 # (640). Until then the int8 bound was 1024 + 8 C, set by the 64-channel graph: it split adsm-rf17-int8's
-# KITTI-size run in two, whose unequal arena plans cost 0.13 s of its 0.57 (docs/service.md, "Memory").
+# KITTI-size run in two, 0.57 s against 0.44 for the whole run (docs/training.md, "17-8conv at four
+# times the CPU steps").
 _WORK_BASE = {"int8": 384, "fp32": 256}
 _WORK_PER_CHANNEL = 8
 _INT8_WORK_PER_CHANNEL_AND_FIELD_PX = 0.5
