@@ -32,7 +32,9 @@ from bench import positive_int
 from bench.suite import SIZES, pair_png
 from service.features import default_model_dir
 
-MODELS = ("adsm-fast", "adsm-paper")
+# The default's fp32 graph (adsm-rf17-int8's twin: the PyTorch towers run fp32), the former default and the
+# paper's config: issue 16 times the default and the paper model.
+MODELS = ("adsm-rf17", "adsm-fast", "adsm-paper")
 
 
 def _towers(folder: Path, kind: str) -> Any:

@@ -2,7 +2,7 @@
 # One device call of issue 16 (docs/gpu.md): the GPU tests on the GPU, the SGM's threads-per-line sweep,
 # then `python -m bench gpu` on the models.
 #
-#   run (device tool): bash bench/gpu_check.sh    timeout_s 240; carry [".gpu/cones"]
+#   run (device tool): bash bench/gpu_check.sh    timeout_s 270; carry [".gpu/cones"]
 #
 # The device's checkout has no ../shared beside it: the Cones pair (the suite's Cones size) travels in an
 # ignored folder (CONES, .gpu/cones: `mkdir -p .gpu/cones && cp ../shared/data/middlebury2003-cones/*
@@ -35,5 +35,5 @@ timeout "${TEST_S:-90}" "$PYTHON" -m pytest -q -p no:cacheprovider tests/service
     tests/service/cuda/test_pipeline.py 2>&1 | tee "$OUT/pytest.log" | tail -n 15
 timeout "${SWEEP_S:-30}" "$PYTHON" -m bench gpu --sgm-threads 32 64 128 256 --sizes kitti \
     --json "$OUT/sgm-threads.json" 2>&1 | tee "$OUT/sgm-threads.log"
-timeout "${BENCH_S:-95}" "$PYTHON" -m bench gpu --towers "$TOWERS" --models adsm-fast adsm-paper \
+timeout "${BENCH_S:-125}" "$PYTHON" -m bench gpu --towers "$TOWERS" --models adsm-rf17 adsm-fast adsm-paper \
     --sizes kitti cones --json "$OUT/gpu-$TOWERS.json" 2>&1 | tee "$OUT/bench-$TOWERS.log"

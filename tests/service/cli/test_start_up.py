@@ -16,7 +16,7 @@ import pytest
 
 from service.api import Settings, create_app
 from service.cli import main
-from service.features import ModelError, default_model_dir
+from service.features import ModelError, default_model_dir, load_manifest
 from service.features.towers import FeatureTowers
 from tests.helpers import ROOT, InstantMatcher
 
@@ -35,8 +35,10 @@ def _edited_copy(tmp_path: Path, **changes: object) -> Path:
     return folder
 
 
-EDITS = [({"channels": 48}, "channels 48"), ({"receptive_field": 21}, "receptive_field 21"),
-         ({"receptive_field": 61}, "receptive_field 61")]
+# A channel count the default's towers do not have (48 was one until adsm-rf17-int8 became the default).
+WRONG_CHANNELS = int(load_manifest(default_model_dir())["channels"]) + 16
+EDITS = [({"channels": WRONG_CHANNELS}, f"channels {WRONG_CHANNELS}"),
+         ({"receptive_field": 21}, "receptive_field 21"), ({"receptive_field": 61}, "receptive_field 61")]
 
 
 @pytest.mark.parametrize(("changes", "fragment"), EDITS, ids=["channels", "receptive-field-low",
