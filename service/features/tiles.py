@@ -33,13 +33,14 @@ from service.features.scale import scaled_halo, upsample, upsampled_size
 # (640). Until then the int8 bound was 1024 + 8 C, set by the 64-channel graph: it split adsm-rf17-int8's
 # KITTI-size run in two, 0.57 s against 0.44 for the whole run (docs/training.md, "17-8conv at four
 # times the CPU steps").
-_WORK_BASE = {"int8": 384, "fp32": 256}
-_WORK_PER_CHANNEL = 8
+_FP32_WORK_BASE = 256
+_FP32_WORK_PER_CHANNEL = 8
+_INT8_WORK_BASE = 384
 _INT8_WORK_PER_CHANNEL_AND_FIELD_PX = 0.5
 # Graphs with adaptive support (manifest onnx.adaptive_support) hold each 3x3 conv's nine weighted taps and
 # their concatenation, 2 x 9 x 4 bytes per channel, beside the plain graph's work: an 11-5conv folder of
 # 32 channels ran out of a plain graph's budget on Motorcycle (thirty-fourth session).
-_WORK_PER_CHANNEL_ADAPTIVE = _WORK_PER_CHANNEL + 2 * 9 * 4
+_ADAPTIVE_WORK_PER_CHANNEL = 2 * 9 * 4
 
 # Largest work area of one tower run. 640 MiB lets every shipped folder but adsm-paper-int8 run a KITTI-size
 # image (375 x 1242) whole and adsm-paper-int8 in 2 strips, as the former row-strip budget did, while a
@@ -69,16 +70,16 @@ class Tile:
 
 def work_bytes_per_pixel(manifest: dict[str, Any]) -> int:
     """Bound on ONNX Runtime's work area per padded pixel of one tower run of this model."""
-    precision = str(manifest.get("onnx", {}).get("precision", "fp32"))
+    onnx = manifest.get("onnx", {})
     channels = int(manifest["channels"])
-    adaptive = bool(manifest.get("onnx", {}).get("adaptive_support", False))
-    per_channel = _WORK_PER_CHANNEL_ADAPTIVE if adaptive else _WORK_PER_CHANNEL
-    if precision == "fp32":
-        return _WORK_BASE["fp32"] + per_channel * channels
-    # int8, and any precision not listed: the larger bound.
-    field = int(manifest["receptive_field"])
-    int8_work = _WORK_BASE["int8"] + math.ceil(_INT8_WORK_PER_CHANNEL_AND_FIELD_PX * channels * field)
-    return int8_work + (per_channel - _WORK_PER_CHANNEL) * channels
+    if str(onnx.get("precision", "fp32")) == "fp32":
+        work = _FP32_WORK_BASE + _FP32_WORK_PER_CHANNEL * channels
+    else:  # int8, and any precision not listed
+        field = int(manifest["receptive_field"])
+        work = _INT8_WORK_BASE + math.ceil(_INT8_WORK_PER_CHANNEL_AND_FIELD_PX * channels * field)
+    if onnx.get("adaptive_support", False):
+        work += _ADAPTIVE_WORK_PER_CHANNEL * channels
+    return work
 
 
 def halo_of(manifest: dict[str, Any]) -> int:
