@@ -8,7 +8,7 @@ Every floating-point tensor of the state dict is averaged, batch-norm running st
 approximation: the statistics of the averaged weights are not measured again); integer buffers come from
 the last checkpoint. Averaging only makes sense for checkpoints of one lineage (each phase warm-started
 from the previous one): the towers must share their spec. The output carries the last checkpoint's
-deploy settings and its provenance, with the command and every source's provenance added. Measured as
+deploy settings; its provenance is the command and every source's (``training.averaged_from``). Measured as
 an accuracy lever in docs/training.md ("Phase 4 and the averaged phases").
 """
 
@@ -62,7 +62,7 @@ def average_checkpoints(paths: Sequence[str | Path], *, out: str | Path, command
     model = last.build_model()
     model.load_state_dict(average_state_dicts(checkpoints))
     sources = [_source(path, checkpoint) for path, checkpoint in zip(paths, checkpoints, strict=True)]
-    training = dict(last.training or {}) | {
+    training = {
         "command": command,
         "data": f"none beyond the {len(paths)} averaged checkpoints' (averaged_from)",
         "wall_time_s": 0.0,
@@ -70,8 +70,6 @@ def average_checkpoints(paths: Sequence[str | Path], *, out: str | Path, command
         "averaged_from": sources,
         "wall_time_total_s": float((last.training or {}).get("wall_time_total_s", 0.0)),
     }
-    for key in ("warm_start", "finished", "device", "git_commit"):  # the sources' own: in averaged_from
-        training.pop(key, None)
     return save_checkpoint(out, model=model, step=last.step, metrics={}, training=training,
                            config=last.config, deploy=last.deploy, rng=False)
 
