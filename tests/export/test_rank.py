@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from export.baseline import build_folder
-from export.rank import main, rank_reports
+from export.rank import LEVEL_MARGIN, main, rank_reports, replaces
 
 # The synthetic validation split needs the train extra's generator (scikit-image's photographs).
 pytestmark = pytest.mark.torch
@@ -91,6 +91,7 @@ def test_folders_are_evaluated_on_the_split(tmp_path: Path, capsys: pytest.Captu
     (["--report", "a=REPORT,"], 1, "NAME=PATH[,PATH...]"),
     (["--report", "a=REPORT,REPORT", "--report", "b=REPORT"], 1, "as many pooled reports"),
     (["--report", "a=REPORT,OTHER"], 1, "a: the reports to pool are not over the same pairs"),
+    (["--report", "a=REPORT", "--default", "b"], 1, "--default 'b' names no entry (a)"),
 ])
 def test_bad_input_is_one_line_not_a_traceback(argv, code, message, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
@@ -111,3 +112,54 @@ def test_a_missing_folder_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixt
     assert main([str(tmp_path / "nowhere"), "--pairs", "2"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("evaluating") and "export.rank: error:" in err and "Traceback" not in err
+
+
+def _figures(bad2: list[float], bad1: list[float]) -> dict:
+    """A report whose pairs have these bad-2 and bad-1 figures (1000 pixels each)."""
+    pairs = [{"name": f"synthetic-{index}", "all": {"bad2": two, "bad1": one, "pixels": 1000}}
+             for index, (two, one) in enumerate(zip(bad2, bad1, strict=True))]
+    return {"all": {"bad2": sum(bad2) / len(bad2), "bad1": sum(bad1) / len(bad1), "epe": 1.0},
+            "seconds_per_pair": 0.1, "per_pair": pairs}
+
+
+CURRENT = _figures([10.0, 12.0] * 20, [15.0, 17.0] * 20)
+
+
+@pytest.mark.parametrize(("bad2", "bad1", "verdict", "reason"), [
+    # bad-2 0.5 lower on every pair: a resolved lead, whatever bad-1 does
+    ([9.5, 11.5] * 20, [16.0, 18.0] * 20, True, "a resolved bad-2 lead (-0.50)"),
+    # bad-2 alike, bad-1 0.3 lower on every pair: level and a resolved bad-1 lead
+    ([10.0, 12.0] * 20, [14.7, 16.7] * 20, True, "bad-2 level (+0.00, within +-0.1) and a resolved bad-1"),
+    # bad-2 0.05 higher on every pair: inside the margin, still level
+    ([10.05, 12.05] * 20, [14.7, 16.7] * 20, True, "bad-2 level (+0.05"),
+    # bad-2 0.2 higher on every pair: a resolved loss, not bought back by bad-1
+    ([10.2, 12.2] * 20, [14.0, 16.0] * 20, False, "a resolved bad-2 loss (+0.20)"),
+    # bad-2 level on average but +-1 point per pair: the interval reaches beyond the margin
+    ([11.0, 11.0] * 20, [14.0, 16.0] * 20, False, "bad-2 not resolved"),
+    # level on both
+    ([10.0, 12.0] * 20, [15.0, 17.0] * 20, False, "bad-2 level (+0.00) without a resolved bad-1 lead"),
+])
+def test_a_folder_replaces_another_on_a_bad2_lead_or_on_bad1_where_bad2_is_level(
+        bad2: list[float], bad1: list[float], verdict: bool, reason: str) -> None:
+    result = replaces(CURRENT, _figures(bad2, bad1))
+    assert result.replaces is verdict and result.reason.startswith(reason)
+    assert result.bad2.pairs == 40 and LEVEL_MARGIN == 0.1
+
+
+def test_the_default_flag_prints_each_entrys_verdict(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    reports = {"current": CURRENT, "sharper": _figures([10.0, 12.0] * 20, [14.7, 16.7] * 20),
+               "worse": _figures([10.2, 12.2] * 20, [14.0, 16.0] * 20)}
+    argv = []
+    for name, report in reports.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(report), encoding="utf-8")
+        argv += ["--report", f"{name}={tmp_path / name}.json"]
+    out = tmp_path / "rank.json"
+    assert main([*argv, "--default", "current", "--json", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.startswith("sharper replaces current: bad-2 level") for line in lines)
+    assert any(line.startswith("worse does not replace current: a resolved bad-2 loss") for line in lines)
+    written = {row["name"]: row for row in json.loads(out.read_text(encoding="utf-8"))}
+    assert "replaces_default" not in written["current"]
+    assert written["sharper"]["replaces_default"]["replaces"] is True
+    assert written["worse"]["replaces_default"]["bad2"]["difference"] == pytest.approx(0.2)
