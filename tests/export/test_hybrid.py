@@ -48,6 +48,22 @@ def test_the_blend_is_the_weighted_sum_of_the_two_cosines(image: np.ndarray, win
     assert cosine(hybrid) == pytest.approx(expected, abs=1e-5)
 
 
+
+def test_a_constant_share_scales_the_norm_not_the_channels(image: np.ndarray) -> None:
+    # Both exporters end in Div(features, norm): the share goes into the 1-channel norm, so the graph has no
+    # elementwise pass over all channels beside the concatenation. A tower ending otherwise gets its own.
+    learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(3, side="left")
+    combined = combine_towers(learned, ncc, core_weight=0.02)
+    assert [node.op_type for node in combined.graph.node].count("Mul") == (
+        [node.op_type for node in learned.graph.node].count("Mul") + 2)   # one per branch, on its norm
+    identity = onnx.helper.make_node("Identity", ["features"], ["renamed"])
+    ncc_ending = onnx.load_from_string(ncc.SerializeToString())
+    ncc_ending.graph.node.append(identity)
+    ncc_ending.graph.output[0].name = "renamed"
+    hybrid = _features(combine_towers(learned, ncc_ending, core_weight=0.02), image)
+    np.testing.assert_allclose(hybrid[0, -9:], math.sqrt(0.02) * _features(ncc, image)[0], atol=1e-6)
+    np.testing.assert_allclose(hybrid[0, :-9], math.sqrt(0.98) * _features(learned, image)[0], atol=1e-5)
+
 def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -> None:
     image = image.copy()
     image[..., :20] = 0.5 + 0.002 * image[..., :20]   # a flat left half beside the textured right one
