@@ -88,35 +88,40 @@ def combine_towers(learned: onnx.ModelProto, core: onnx.ModelProto, *, core_weig
     graph.initializer.extend(core_graph.initializer)
     core_channels = core.graph.output[0].type.tensor_type.shape.dim[1].dim_value
     learned_channels = graph.output[0].type.tensor_type.shape.dim[1].dim_value
-    if gate is not None:
-        _gate_nodes(graph, gate, learned_channels=learned_channels, core_channels=core_channels,
-                    core_features=core_graph.output[0].name)
-    elif texture_energy is None:
+    core_features = core_graph.output[0].name
+    if gate is None and texture_energy is None:
         assert core_weight is not None
         learned_out = _scale_normalised(graph, LEARNED_FEATURES, math.sqrt(1.0 - core_weight), "learned")
-        core_out = _scale_normalised(graph, core_graph.output[0].name, math.sqrt(core_weight), "core")
-        graph.node.append(helper.make_node("Concat", [learned_out, core_out], [FEATURES], axis=1,
-                                           name="blend"))
-        return _finish(combined, core, core_channels + learned_channels, core_weight, texture_energy, gate)
-    else:
-        graph.initializer.extend([numpy_helper.from_array(_scalar(value), name) for name, value in (
-            ("blend/core_weight", core_weight), ("blend/texture_energy", texture_energy))])
+        core_out = _scale_normalised(graph, core_features, math.sqrt(core_weight), "core")
+    else:  # a per-pixel share: blend/w, then learned_share and core_share
+        if gate is not None:
+            _gate_nodes(graph, gate, learned_channels=learned_channels, core_channels=core_channels,
+                        core_features=core_features)
+        else:
+            graph.initializer.extend([numpy_helper.from_array(_scalar(value), name) for name, value in (
+                ("blend/core_weight", core_weight), ("blend/texture_energy", texture_energy))])
+            graph.node.extend([
+                helper.make_node("Add", [ENERGY, "blend/texture_energy"], ["blend/energy_e0"],
+                                 name="blend_energy"),
+                helper.make_node("Div", [ENERGY, "blend/energy_e0"], ["blend/textured"],
+                                 name="blend_textured"),
+                helper.make_node("Mul", ["blend/textured", "blend/core_weight"], ["blend/w"],
+                                 name="blend_weight"),
+            ])
+            _share_nodes(graph)
+        learned_out, core_out = "learned/scaled", "core/scaled"
         graph.node.extend([
-            helper.make_node("Add", [ENERGY, "blend/texture_energy"], ["blend/energy_e0"],
-                             name="blend_energy"),
-            helper.make_node("Div", [ENERGY, "blend/energy_e0"], ["blend/textured"], name="blend_textured"),
-            helper.make_node("Mul", ["blend/textured", "blend/core_weight"], ["blend/w"],
-                             name="blend_weight"),
+            helper.make_node("Mul", [LEARNED_FEATURES, "learned_share"], [learned_out], name="learned_share"),
+            helper.make_node("Mul", [core_features, "core_share"], [core_out], name="core_share"),
         ])
-        _share_nodes(graph)
-    graph.node.extend([
-        helper.make_node("Mul", [LEARNED_FEATURES, "learned_share"], ["learned/scaled"],
-                         name="learned_share"),
-        helper.make_node("Mul", [core_graph.output[0].name, "core_share"], ["core/scaled"],
-                         name="core_share"),
-        helper.make_node("Concat", ["learned/scaled", "core/scaled"], [FEATURES], axis=1, name="blend"),
-    ])
-    return _finish(combined, core, core_channels + learned_channels, core_weight, texture_energy, gate)
+    graph.node.append(helper.make_node("Concat", [learned_out, core_out], [FEATURES], axis=1, name="blend"))
+    graph.output[0].type.tensor_type.shape.dim[1].dim_value = learned_channels + core_channels
+    graph.name = f"{graph.name}+{core.graph.name}"
+    share = _share_text(core_weight, texture_energy, gate)
+    combined.doc_string = (f"hybrid tower: features of the learned cosine and of the core "
+                           f"({core.graph.name}), core share {share}")
+    onnx.checker.check_model(combined, full_check=True)
+    return combined
 
 
 def _scale_normalised(graph: onnx.GraphProto, features: str, share: float, branch: str) -> str:
@@ -143,19 +148,6 @@ def _scale_normalised(graph: onnx.GraphProto, features: str, share: float, branc
     graph.node.append(helper.make_node("Div", [features, inverse], [f"{branch}/scaled"],
                                        name=f"{branch}_share"))
     return f"{branch}/scaled"
-
-
-def _finish(combined: onnx.ModelProto, core: onnx.ModelProto, channels: int, core_weight: float | None,
-            texture_energy: float | None, gate: dict[str, Any] | None) -> onnx.ModelProto:
-    """Output shape, name and doc string of the combined graph, checked."""
-    graph = combined.graph
-    graph.output[0].type.tensor_type.shape.dim[1].dim_value = channels
-    graph.name = f"{graph.name}+{core.graph.name}"
-    share = _share_text(core_weight, texture_energy, gate)
-    combined.doc_string = (f"hybrid tower: features of the learned cosine and of the core "
-                           f"({core.graph.name}), core share {share}")
-    onnx.checker.check_model(combined, full_check=True)
-    return combined
 
 
 def _gate_nodes(graph: onnx.GraphProto, gate: dict[str, Any], *, learned_channels: int, core_channels: int,

@@ -48,7 +48,6 @@ def test_the_blend_is_the_weighted_sum_of_the_two_cosines(image: np.ndarray, win
     assert cosine(hybrid) == pytest.approx(expected, abs=1e-5)
 
 
-
 def test_a_constant_share_scales_the_norm_not_the_channels(image: np.ndarray) -> None:
     # Both exporters end in Div(features, norm): the share goes into the 1-channel norm, so the graph has no
     # elementwise pass over all channels beside the concatenation. A tower ending otherwise gets its own.
@@ -63,6 +62,7 @@ def test_a_constant_share_scales_the_norm_not_the_channels(image: np.ndarray) ->
     hybrid = _features(combine_towers(learned, ncc_ending, core_weight=0.02), image)
     np.testing.assert_allclose(hybrid[0, -9:], math.sqrt(0.02) * _features(ncc, image)[0], atol=1e-6)
     np.testing.assert_allclose(hybrid[0, :-9], math.sqrt(0.98) * _features(learned, image)[0], atol=1e-5)
+
 
 def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -> None:
     image = image.copy()
