@@ -73,14 +73,14 @@ def _compiled_signatures() -> int:
     return total
 
 
-def _machine() -> str:
+def machine_description() -> str:
     """The CPU model and the cores this process may use: timings mean little without them."""
     model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
                   if line.startswith("model name")), None) if Path("/proc/cpuinfo").is_file() else None
     return f"{model or platform.processor() or platform.machine()}, {len(os.sched_getaffinity(0))} cores"
 
 
-def _commit() -> str | None:
+def checkout_commit() -> str | None:
     """The checkout's commit (with '+dirty' when files differ from it), or None outside a git checkout."""
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPOSITORY, capture_output=True, text=True,
@@ -199,7 +199,8 @@ def _child(args: list[str]) -> dict[str, Any]:
     return json.loads(completed.stdout.strip().splitlines()[-1])
 
 
-def _resolve(name: str) -> Path:
+def model_folder(name: str) -> Path:
+    """A folder given by path, or by its name under service/models."""
     from service.features.manifest import MODELS_DIR
 
     path = Path(name)
@@ -303,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from service.features.manifest import ModelError, default_model_dir
 
-    folders = [_resolve(name) for name in args.models] if args.models else shipped_models()
+    folders = [model_folder(name) for name in args.models] if args.models else shipped_models()
     missing = [str(f) for f in folders if not (f / "manifest.json").is_file()]
     if missing:
         parser.error(f"not a model folder (no manifest.json): {', '.join(missing)}")
@@ -313,7 +314,8 @@ def main(argv: list[str] | None = None) -> int:
         default = folders[0]
     started = time.perf_counter()
     report: dict[str, Any] = {"repeats": args.repeats, "threads": threads, "load_before": os.getloadavg(),
-                              "machine": _machine(), "commit": _commit(), "command": _command(argv),
+                              "machine": machine_description(), "commit": checkout_commit(),
+                              "command": _command(argv),
                               "default_model": default.name, "models": [], "peers": []}
     common = ["--repeats", str(args.repeats)] + (["--threads", str(args.threads)] if args.threads else [])
     for size in args.sizes:

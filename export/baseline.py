@@ -4,11 +4,15 @@
     python -m export.measure --model service/models/ncc-baseline --write --synthetic 20
     python -m export.baseline --out DIR [--window W --p1 P1 --p2 P2]     (no measurement)
 
-Each tower: RGB -> grey (BT.601), edge padding by w // 2 (inside the graph, so H, W are kept), the
-w x w window around each pixel unfolded into w*w channels with the window mean subtracted (one
-convolution whose kernels are one-hot minus 1 / w^2), then L2 normalisation over the channels. So
-<FL, FR> is the normalised cross-correlation of the two windows and the runtime's cost is -scale * NCC.
-A flat window (no texture) gives a zero vector, i.e. an indifferent cost 0 at every disparity.
+Each tower: edge padding by w // 2 (inside the graph, so H, W are kept), then one convolution that
+turns each pixel's w x w window of grey values (BT.601) into its w*w - 1 coordinates in an orthonormal
+basis of the zero-mean windows (:func:`zero_mean_basis`), then L2 normalisation over the channels. The
+coordinates of a window's zero-mean residual have its norm and its dot products, so <FL, FR> is the
+normalised cross-correlation of the two windows and the runtime's cost is -scale * NCC, with one channel
+fewer than the w*w taps (the mean carries no correlation): 8 for a 3x3 window, which keeps the 48 + 8
+channels of adsm-rf17-ncc3-int8 a multiple of the cost volume's 8 lanes. Grey is linear, so it folds into
+the same convolution. A flat window (no texture) gives a zero vector, i.e. an indifferent cost 0 at
+every disparity.
 
 It needs only `onnx` (no torch), proves the runtime end to end before a trained model exists, and stays
 the baseline every trained model must beat. ``--measure`` chooses the window and its SGM penalties by
@@ -44,29 +48,56 @@ GREY = (0.299, 0.587, 0.114)
 NORM_EPS = 1e-6
 # The choice of `--measure` (table in service/models/ncc-baseline/manifest.json, build.selection).
 DEFAULT_WINDOW = 7
-MAX_WINDOW = 63  # w^2 = 3969 feature channels per pixel; a larger window only exhausts memory
+MIN_WINDOW = 3  # a 1x1 window has no zero-mean coordinate: nothing to correlate
+MAX_WINDOW = 63  # w^2 - 1 = 3968 feature channels per pixel; a larger window only exhausts memory
 SGM_P1 = 65.0
 SGM_P2 = 540.0
 
 
-def build_tower(window: int, *, side: str) -> onnx.ModelProto:
-    """One NCC tower as an ONNX model: input ``image`` [1, 3, H, W] -> ``features`` [1, w*w, H, W]."""
-    if window < 1 or window % 2 == 0 or window > MAX_WINDOW:
-        raise ValueError(f"window must be an odd positive size up to {MAX_WINDOW}, got {window}")
-    radius = window // 2
+def ncc_channels(window: int) -> int:
+    """Feature channels of a w x w NCC window: its zero-mean coordinates, one fewer than its taps.
+
+    >>> ncc_channels(3)
+    8
+    """
+    return window * window - 1
+
+
+def zero_mean_basis(window: int) -> np.ndarray:
+    """Orthonormal rows spanning the zero-mean w x w windows: ``(w*w - 1, w*w)``, each row orthogonal to ones.
+
+    The Helmert basis: row k - 1 compares tap k with the mean of the taps before it, so it is fixed, exact and
+    independent of any library's QR.
+
+    >>> basis = zero_mean_basis(3)
+    >>> basis.shape, bool(np.allclose(basis @ basis.T, np.eye(8))), bool(np.allclose(basis.sum(axis=1), 0))
+    ((8, 9), True, True)
+    """
     taps = window * window
-    one_hot = np.eye(taps, dtype=np.float32).reshape(taps, 1, window, window)
-    # Subtracting the window mean is linear, so it folds into the unfolding kernels.
-    unfold = one_hot - np.float32(1.0 / taps)
+    basis = np.zeros((ncc_channels(window), taps))
+    for k in range(1, taps):
+        basis[k - 1, :k] = 1.0
+        basis[k - 1, k] = -k
+        basis[k - 1] /= np.sqrt(k * (k + 1))
+    return basis
+
+
+def build_tower(window: int, *, side: str) -> onnx.ModelProto:
+    """One NCC tower as an ONNX model: input ``image`` [1, 3, H, W] -> ``features`` [1, w*w - 1, H, W]."""
+    if window < MIN_WINDOW or window % 2 == 0 or window > MAX_WINDOW:
+        raise ValueError(f"window must be an odd size from {MIN_WINDOW} to {MAX_WINDOW}, got {window}")
+    radius = window // 2
+    channels = ncc_channels(window)
+    # Subtracting the window mean, the change of basis and the grey conversion are all linear: one kernel.
+    kernels = zero_mean_basis(window)[:, None, :] * np.asarray(GREY)[None, :, None]
+    unfold = kernels.reshape(channels, 3, window, window).astype(np.float32)
     initializers = [
-        numpy_helper.from_array(np.asarray(GREY, np.float32).reshape(1, 3, 1, 1), "grey_weights"),
         numpy_helper.from_array(np.array([0, 0, radius, radius, 0, 0, radius, radius], np.int64), "pads"),
         numpy_helper.from_array(unfold, "unfold_weights"),
         numpy_helper.from_array(np.array([NORM_EPS], np.float32), "norm_eps"),
     ]
     nodes = [
-        helper.make_node("Conv", ["image", "grey_weights"], ["grey"], name="to_grey"),
-        helper.make_node("Pad", ["grey", "pads"], ["padded"], mode="edge", name="edge_pad"),
+        helper.make_node("Pad", ["image", "pads"], ["padded"], mode="edge", name="edge_pad"),
         helper.make_node("Conv", ["padded", "unfold_weights"], ["patches"], name="unfold_zero_mean"),
         helper.make_node("ReduceSumSquare", ["patches"], ["energy"], axes=[1], keepdims=1, name="energy"),
         helper.make_node("Add", ["energy", "norm_eps"], ["energy_eps"], name="regularise"),
@@ -77,7 +108,7 @@ def build_tower(window: int, *, side: str) -> onnx.ModelProto:
         nodes,
         f"ncc_{window}x{window}_{side}",
         [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, 3, "height", "width"])],
-        [helper.make_tensor_value_info("features", TensorProto.FLOAT, [1, taps, "height", "width"])],
+        [helper.make_tensor_value_info("features", TensorProto.FLOAT, [1, channels, "height", "width"])],
         initializer=initializers,
     )
     model = helper.make_model(
@@ -119,7 +150,7 @@ def baseline_manifest(
             "Not trained; every trained model must beat it."
         ),
         "config": f"ncc-{window}x{window}",
-        "channels": window * window,
+        "channels": ncc_channels(window),
         "receptive_field": window,
         "shared_towers": True,
         "input": RUNTIME_DEFAULTS.input(),

@@ -16,12 +16,13 @@ unit-norm features scaled by sqrt(1 - w) and sqrt(w) (w = ``--core-weight``). Th
 with no change to the runtime: a blend of costs that fail differently. With an NCC core the second term
 is NCC_window(L(y, x), R(y, x - d)): the small window keeps the cost sharp at depth edges, where a wide
 receptive field fattens the foreground (docs/training.md, "Hybrid cost"); it stays float32 in an int8
-folder (9 taps of a 3x3 window: no work worth quantising). With a trained core of another receptive field
-the blend is an ensemble of two learned costs (docs/training.md, "Small towers with today's runtime,
-and ensembles of towers"). The manifest keeps the learned folder's training provenance, records the
-core's in ``build.core_training`` and the build in ``build``. With ``--gate`` (an NCC core) the share is
-learned per pixel by ``python -m training.gate`` (training/networks/gate.py): w(x) = sigmoid(a . [learned
-features, NCC window, log(E + eps)] + b), recorded with its training in ``build.gate``.
+folder (8 zero-mean coordinates of a 3x3 window: no work worth quantising). With a trained core of
+another receptive field the blend is an ensemble of two learned costs (docs/training.md, "Small towers
+with today's runtime, and ensembles of towers"). The manifest keeps the learned folder's training
+provenance, records the core's in ``build.core_training`` and the build in ``build``. With ``--gate`` (an
+NCC core) the share is learned per pixel by ``python -m training.gate`` (training/networks/gate.py): w(x)
+= sigmoid(a . [learned features, NCC window, log(E + eps)] + b), recorded with its training in
+``build.gate``.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from export.baseline import NORM_EPS, build_tower
+from export.baseline import NORM_EPS, build_tower, ncc_channels
 from export.folder import read_graph, write_folder
 from export.tune import tune_folder
 from service.features.manifest import TOWER_FILES, ModelError, load_manifest, verify_files
@@ -154,10 +155,11 @@ def _gate_nodes(graph: onnx.GraphProto, gate: dict[str, Any], *, learned_channel
                 core_features: str) -> None:
     """w = sigmoid(1x1 conv of [learned, core, log(E + eps)]) and the two shares: training.networks.gate."""
     inputs = learned_channels + core_channels + 1
-    if int(gate["learned_channels"]) != learned_channels or int(gate["window"]) ** 2 != core_channels:
+    trained_for = ncc_channels(int(gate["window"]))
+    if int(gate["learned_channels"]) != learned_channels or trained_for != core_channels:
         raise ValueError(f"the gate was trained for {gate['learned_channels']} learned channels and a "
                          f"{gate['window']}x{gate['window']} window, not {learned_channels} and "
-                         f"{core_channels} taps")
+                         f"{core_channels} NCC channels")
     weight = np.asarray(gate["weight"], np.float32)
     if weight.size != inputs:
         raise ValueError(f"the gate has {weight.size} weights; {inputs} expected")
@@ -203,7 +205,7 @@ def hybrid_manifest(learned: dict[str, Any], *, name: str, core_weight: float | 
     if core is None:
         assert window is not None
         core_name, core_config = f"NCC of {window}x{window} grey windows", f"ncc-{window}x{window}"
-        core_channels, core_field, core_label = window * window, window, f"ncc{window}x{window}"
+        core_channels, core_field, core_label = ncc_channels(window), window, f"ncc{window}x{window}"
     else:
         core_name, core_config = f"the towers of {core['name']}", core["config"]
         core_channels, core_field, core_label = core["channels"], core["receptive_field"], "core"

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from export.baseline import ncc_channels
 from service.datasets import StereoSample
 from service.evaluation.evaluate import evaluate
 from service.evaluation.tuning import P1_GRID, P2_GRID, tune_penalties
@@ -70,7 +71,7 @@ class GatedTowers(Towers):
         self.learned, self.gate = learned, gate
         self.ncc = NCCWindow(gate.window)
         self.manifest: dict[str, Any] = dict(learned.manifest)
-        self.manifest["channels"] = int(learned.manifest["channels"]) + gate.window ** 2
+        self.manifest["channels"] = int(learned.manifest["channels"]) + ncc_channels(gate.window)
         self.manifest["receptive_field"] = max(int(learned.manifest["receptive_field"]), gate.window)
 
     def image(self, image: np.ndarray) -> torch.Tensor:

@@ -12,7 +12,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 
-from export.baseline import build_tower
+from export.baseline import build_tower, ncc_channels
 from export.hybrid import build_folder, combine_towers, main
 from service.features import load_manifest
 from service.features.manifest import MODELS_DIR
@@ -37,7 +37,7 @@ def test_the_blend_is_the_weighted_sum_of_the_two_cosines(image: np.ndarray, win
     learned, ncc = onnx.load(LEARNED / "left.onnx"), build_tower(window, side="left")
     hybrid = _features(combine_towers(learned, ncc, core_weight=weight), image)
     learned_features, ncc_features = _features(learned, image), _features(ncc, image)
-    assert hybrid.shape == (1, learned_features.shape[1] + window * window, 24, 40)
+    assert hybrid.shape == (1, learned_features.shape[1] + ncc_channels(window), 24, 40)
     np.testing.assert_allclose(np.linalg.norm(hybrid, axis=1), 1.0, atol=1e-5)
     # The runtime's cost is the dot product of the two views' features: for two pixels of the same image
     # it must be (1 - w) * learned cosine + w * NCC.
@@ -60,8 +60,8 @@ def test_a_constant_share_scales_the_norm_not_the_channels(image: np.ndarray) ->
     ncc_ending.graph.node.append(identity)
     ncc_ending.graph.output[0].name = "renamed"
     hybrid = _features(combine_towers(learned, ncc_ending, core_weight=0.02), image)
-    np.testing.assert_allclose(hybrid[0, -9:], math.sqrt(0.02) * _features(ncc, image)[0], atol=1e-6)
-    np.testing.assert_allclose(hybrid[0, :-9], math.sqrt(0.98) * _features(learned, image)[0], atol=1e-5)
+    np.testing.assert_allclose(hybrid[0, -8:], math.sqrt(0.02) * _features(ncc, image)[0], atol=1e-6)
+    np.testing.assert_allclose(hybrid[0, :-8], math.sqrt(0.98) * _features(learned, image)[0], atol=1e-5)
 
 
 def test_a_texture_adaptive_share_follows_the_window_energy(image: np.ndarray) -> None:
@@ -93,7 +93,7 @@ def test_a_weight_outside_the_open_interval_is_refused(weight: float) -> None:
 def test_the_folder_is_a_valid_model_that_matches(tmp_path: Path) -> None:
     path = build_folder(tmp_path / "hybrid", learned=LEARNED, window=3, core_weight=0.25, command="test")
     manifest, learned = load_manifest(path.parent), load_manifest(LEARNED)
-    assert manifest["channels"] == learned["channels"] + 9
+    assert manifest["channels"] == learned["channels"] + ncc_channels(3)
     assert manifest["config"] == f"{learned['config']}+ncc-3x3"
     assert manifest["onnx"]["precision"] == learned["onnx"]["precision"]
     assert manifest["training"] == learned["training"]  # the towers' provenance goes with them
@@ -122,7 +122,7 @@ def test_the_command_writes_penalties_given_and_reports_errors(tmp_path: Path,
                  "--p1", "3"]) == 1
     errors = capsys.readouterr().err
     assert "strictly between 0 and 1" in errors and "does not exist" in errors
-    assert "odd positive size" in errors and "give either --tune or --p1/--p2" in errors
+    assert "odd size from 3" in errors and "give either --tune or --p1/--p2" in errors
     assert "Traceback" not in errors
 
 
@@ -179,7 +179,7 @@ def _gate(learned_channels: int = 32, window: int = 3, *, seed: int = 5) -> dict
     """A gate.json as python -m training.gate writes it (random weights: the graph must apply any)."""
     rng = np.random.default_rng(seed)
     return {"schema": "adsm-gate/1", "window": window, "learned_channels": learned_channels,
-            "weight": [float(v) for v in rng.normal(0, 0.5, learned_channels + window * window + 1)],
+            "weight": [float(v) for v in rng.normal(0, 0.5, learned_channels + ncc_channels(window) + 1)],
             "bias": 1.5, "learned": {"name": LEARNED.name}, "training": {"command": "test"}}
 
 
@@ -211,7 +211,7 @@ def test_a_gated_folder_records_its_gate_and_keeps_the_learned_settings(tmp_path
     manifest = load_manifest(path.parent)
     learned = load_manifest(MODELS_DIR / "adsm-rf11-int8")
     assert manifest["build"]["gate"] == _gate() and manifest["build"]["ncc_window"] == 3
-    assert manifest["channels"] == 41 and manifest["training"] == learned["training"]
+    assert manifest["channels"] == 32 + ncc_channels(3) and manifest["training"] == learned["training"]
     assert manifest["sgm"]["shiftable_windows"] is learned["sgm"]["shiftable_windows"] is True
     assert "learned (build.gate)" in manifest["description"]
     left = np.random.default_rng(4).integers(0, 256, (40, 64, 3), dtype=np.uint8)

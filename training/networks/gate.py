@@ -17,7 +17,7 @@ operations into the folder's ONNX graph.
 >>> ncc = NCCWindow(3)
 >>> features, energy = ncc(torch.rand(1, 3, 20, 30))
 >>> features.shape, energy.shape
-(torch.Size([1, 9, 20, 30]), torch.Size([1, 1, 20, 30]))
+(torch.Size([1, 8, 20, 30]), torch.Size([1, 1, 20, 30]))
 >>> gate = TextureGate(learned_channels=32, window=3)
 >>> share = gate(torch.rand(1, 32, 20, 30), features, energy).detach()
 >>> float(share.min()) > 0.0 and float(share.max()) < 0.1     # starts nearly closed: the learned cost
@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from export.baseline import GREY, NORM_EPS
+from export.baseline import GREY, MIN_WINDOW, NORM_EPS, ncc_channels, zero_mean_basis
 
 # The gate starts at sigmoid(-3) ~ 0.05: close to the trained folder's own cost, which it must not lose.
 INITIAL_GATE_BIAS = -3.0
@@ -39,23 +39,22 @@ INITIAL_GATE_BIAS = -3.0
 class NCCWindow(nn.Module):
     """``export.baseline``'s NCC tower in PyTorch: images [N, 3, H, W] -> (features, energy).
 
-    Features [N, w*w, H, W], energy [N, 1, H, W].
-    Grey (BT.601), edge padding by w // 2, the window's zero-mean taps, divided by sqrt(energy + eps).
+    Features [N, w*w - 1, H, W], energy [N, 1, H, W].
+    Edge padding by w // 2, the grey (BT.601) window's zero-mean coordinates (one conv), divided by
+    sqrt(energy + eps).
     """
 
     def __init__(self, window: int) -> None:
         super().__init__()
-        if window < 1 or window % 2 == 0:
-            raise ValueError(f"window must be an odd positive size, got {window}")
+        if window < MIN_WINDOW or window % 2 == 0:
+            raise ValueError(f"window must be an odd size from {MIN_WINDOW}, got {window}")
         self.window = window
-        taps = window * window
-        self.register_buffer("grey", torch.tensor(GREY, dtype=torch.float32).reshape(1, 3, 1, 1))
-        self.register_buffer("unfold", torch.eye(taps).reshape(taps, 1, window, window) - 1.0 / taps)
+        kernels = torch.from_numpy(zero_mean_basis(window))[:, None, :] * torch.tensor(GREY)[None, :, None]
+        self.register_buffer("unfold", kernels.reshape(ncc_channels(window), 3, window, window).float())
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         radius = self.window // 2
-        grey = (image * self.grey).sum(dim=1, keepdim=True)
-        patches = F.conv2d(F.pad(grey, (radius, radius, radius, radius), mode="replicate"), self.unfold)
+        patches = F.conv2d(F.pad(image, (radius, radius, radius, radius), mode="replicate"), self.unfold)
         energy = (patches * patches).sum(dim=1, keepdim=True)
         return patches / torch.sqrt(energy + NORM_EPS), energy
 
@@ -66,7 +65,7 @@ class TextureGate(nn.Module):
     def __init__(self, *, learned_channels: int, window: int, bias: float = INITIAL_GATE_BIAS) -> None:
         super().__init__()
         self.learned_channels, self.window = learned_channels, window
-        self.conv = nn.Conv2d(learned_channels + window * window + 1, 1, 1)
+        self.conv = nn.Conv2d(learned_channels + ncc_channels(window) + 1, 1, 1)
         nn.init.zeros_(self.conv.weight)
         nn.init.constant_(self.conv.bias, bias)
 

@@ -12,7 +12,7 @@ import onnx
 import pytest
 from onnx import TensorProto, helper
 
-from export.baseline import baseline_manifest, build_folder, build_tower
+from export.baseline import baseline_manifest, build_folder, build_tower, zero_mean_basis
 from export.measure import CONES as CONES_NAME
 from export.measure import measure_folder
 from service.features import FeatureTowers, ModelError, default_model_dir, load_manifest, write_manifest
@@ -48,9 +48,13 @@ def test_baseline_towers_compute_ncc_windows(baseline_folder):
     left = RNG.integers(0, 256, (12, 17, 3), dtype=np.uint8)
     right = RNG.integers(0, 256, (12, 17, 3), dtype=np.uint8)
     features_left, features_right = towers(left, right)
-    assert features_left.shape == (25, 12, 17) and features_left.dtype == np.float32
-    np.testing.assert_allclose(features_left, _reference_ncc_features(left, 5), atol=2e-5)
-    np.testing.assert_allclose(features_right, _reference_ncc_features(right, 5), atol=2e-5)
+    assert features_left.shape == (24, 12, 17) and features_left.dtype == np.float32
+    # The towers hold each window's zero-mean coordinates: back in the 25 taps they are the window itself,
+    # so every dot product of two pixels' features is their windows' NCC.
+    basis = zero_mean_basis(5)
+    for features, image in ((features_left, left), (features_right, right)):
+        taps = np.einsum("ct,cyx->tyx", basis, features)
+        np.testing.assert_allclose(taps, _reference_ncc_features(image, 5), atol=2e-5)
     np.testing.assert_allclose(np.linalg.norm(features_left, axis=0), 1.0, atol=1e-5)
 
 
@@ -76,7 +80,7 @@ def test_sizes_kept_down_to_one_pixel(baseline_folder):
     for shape in [(1, 1, 3), (1, 30, 3), (30, 2, 3)]:
         image = RNG.integers(0, 256, shape, dtype=np.uint8)
         features, _ = towers(image, image)
-        assert features.shape == (25, *shape[:2])
+        assert features.shape == (24, *shape[:2])
 
 
 def test_bad_images_refused(baseline_folder):
