@@ -25,10 +25,9 @@ import sys
 from pathlib import Path
 
 from bench import positive_int
-from bench.suite import checkout_commit, machine_description, model_folder
+from bench.suite import SIZES, checkout_commit, machine_description, model_folder
 
-KITTI_SIZE = (375, 1242)
-KITTI_DISPARITIES = 192
+KITTI_SIZE, KITTI_DISPARITIES = SIZES["kitti"][:2], SIZES["kitti"][2]  # the suite's KITTI-size pair
 # The budget of issue 11: a new default may cost at most 10 % more KITTI-size predict time.
 TIME_BUDGET = 1.10
 

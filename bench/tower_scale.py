@@ -20,14 +20,14 @@ import numpy as np
 
 from bench import positive_int
 from bench.runtime import realistic_images
+from bench.suite import SIZES
 from service.datasets import open_dataset
 from service.evaluation.evaluate import evaluate
 from service.features.scale import MAX_TOWER_SCALE
 from service.matcher import Matcher, MatchOptions
 from training.data.evaluation_only import CONES_SPEC, MOTORCYCLE_SPEC
 
-KITTI_SIZE = (375, 1242)
-KITTI_DISPARITIES = 192
+KITTI_SIZE, KITTI_DISPARITIES = SIZES["kitti"][:2], SIZES["kitti"][2]  # the suite's KITTI-size pair
 
 
 def accuracy(matcher: Matcher, scale: int, spec: str, max_disparity: int | None) -> dict[str, float]:
