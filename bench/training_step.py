@@ -9,10 +9,13 @@ each in a fresh process (the allocator setting cannot be undone in one), interle
 - *candidates*: each labelled pixel's 201 candidate logits gathered into ``[M, 201]`` tensors
   (``pixel_candidates`` + ``matching_loss``: the trainer's loss until the thirty-third session);
 - *banded*: ``pixel_losses``, the same loss as a masked log-sum-exp over the product volume's rows;
-- each with glibc's default mmap and trim thresholds, and *kept* (``training.allocator``).
+- each with glibc's default mmap and trim thresholds, and *kept* (``training.allocator``);
+- *both-views*: banded, kept, with eq. (18) from the right view too (``--both-views``: the mirrored
+  pair's volume as well).
 
-The trainer uses *banded, kept*. Prints each variant's median seconds per step over the rounds and its
-ratio to the first variant; the machine should be otherwise idle (docs/training.md, "Trainer speed").
+The trainer uses *banded, kept* (and *both-views* with ``--both-views``). Prints each variant's median
+seconds per step over the rounds and its ratio to the first variant; the machine should be otherwise
+idle (docs/training.md, "Trainer speed").
 """
 
 from __future__ import annotations
@@ -28,8 +31,9 @@ from unittest import mock
 from bench import positive_int
 from training.allocator import keep_freed_memory
 
-LOSSES = ("candidates", "banded")
-VARIANTS = (("candidates", False), ("banded", False), ("candidates", True), ("banded", True))
+LOSSES = ("candidates", "banded", "both-views")
+VARIANTS = (("candidates", False), ("banded", False), ("candidates", True), ("banded", True),
+            ("both-views", True))
 
 
 def step_seconds(*, config: str, channels: int, batch_size: int, steps: int, threads: int, loss: str,
@@ -55,7 +59,7 @@ def step_seconds(*, config: str, channels: int, batch_size: int, steps: int, thr
     torch.manual_seed(0)
     batch = TrainingData("synthetic", seed=0, spec=BatchSpec()).crops(range(batch_size))
     dense = objective.Objective(build_tower_pair(config, channels=channels, shared=True), mode="dense",
-                                edge_weight=4.0)
+                                edge_weight=4.0, both_views=loss == "both-views")
     replaced = candidate_losses if loss == "candidates" else objective.pixel_losses
     with mock.patch.object(objective, "pixel_losses", replaced):
         return _timed_steps(dense, batch, steps=steps)

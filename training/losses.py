@@ -181,6 +181,45 @@ def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixe
     return normaliser - (taps * tap_scores).sum(dim=1)
 
 
+def right_view_examples(pixels: torch.Tensor, truth: torch.Tensor, shift: torch.Tensor, *,
+                        size: tuple[int, int, int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor,
+                                                             torch.Tensor]:
+    """The labelled left pixels as examples of the right view, mirrored for :func:`pixel_losses`.
+
+    A left pixel (b, y, x) with rounded truth t that the right view sees gives the right pixel
+    u = x - t, whose true match is left column x. The right view of a crop mirrored left-right is the
+    left view of a rectified pair (the mirrored right image on the left), so the right pixel's loss is
+    :func:`pixel_losses` of ``flip(features_right)`` against ``flip(features_left)`` at column
+    ``width - 1 - u`` with the same truth and shift (``round(d) - d``: the mirror reverses both the
+    columns and the direction in which a larger disparity moves the match).
+
+    Left pixels the right view does not see carry no right example: of the left pixels whose match is
+    one right pixel, only the nearest (the largest truth) is seen, and a right pixel between two taken
+    by a surface more than a pixel nearer is dropped too (a slanted nearer surface, stretched in the
+    right view, leaves a column between its rounded matches that the hidden background claims).
+    ``size`` is the crop's (B, H, W), as :func:`labelled_pixels` saw it. Returns the mirrored (b, y, x)
+    [N, 3], truth [N], shift [N] and the chosen rows of ``pixels`` [N].
+    """
+    batch, height, width = size
+    b, y, x = pixels.unbind(1)
+    column = x - truth
+    key = (b * height + y) * width + column
+    # Per right pixel, the largest truth among the left pixels that match it (-1: none does).
+    nearest = torch.full((batch * height * width,), -1, dtype=truth.dtype, device=truth.device)
+    nearest.scatter_reduce_(0, key, truth, reduce="amax")
+    seen = truth == nearest[key]
+    inside_gap = torch.ones_like(seen)
+    for side in (-1, 1):
+        neighbour = column + side
+        inside = (neighbour >= 0) & (neighbour < width)
+        beside = torch.where(inside, nearest[(key + side).clamp(0, nearest.numel() - 1)], -1)
+        inside_gap &= beside > truth + 1
+    seen &= ~inside_gap
+    chosen = seen.nonzero(as_tuple=True)[0]
+    mirrored = torch.stack([b[chosen], y[chosen], width - 1 - column[chosen]], dim=1)
+    return mirrored, truth[chosen], shift[chosen], chosen
+
+
 def labelled_pixels(disparity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The pixels of ``disparity`` [B, H, W] (NaN unknown) that are training examples: truth known and
     the match ``x - round(d)`` inside the crop. Returns their (b, y, x) [M, 3], rounded truth [M] and

@@ -87,6 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dense mode: take this share (0-1) of the loss on the costs after four-path SGM "
                              "at adsm-rf11's penalties (training.sgm_loss), the rest on the raw costs as the "
                              "paper does; default 0")
+    parser.add_argument("--both-views", action="store_true",
+                        help="dense mode: eq. (18) from the right view too: every match the right view "
+                             "sees also trains its right pixel against the left row (the loss the mean of "
+                             "both views'; default: the left view's only, as the paper)")
     parser.add_argument("--rectification-error", action="store_true",
                         help="synthetic data: misalign each right view vertically by up to ~1 px (shift, "
                              "rotation, scale: training.data.synthetic.Rectification)")
@@ -204,7 +208,8 @@ def memory_problem(args: argparse.Namespace, device: torch.device) -> str | None
     if args.mode != "dense" or args.batch_size is None or device.type != "cpu":
         return None
     height, width = args.crop
-    needed = 2 * args.batch_size * height * width * width * 4
+    # --both-views scores the mirrored pair as well: a second volume and its gradient.
+    needed = (4 if args.both_views else 2) * args.batch_size * height * width * width * 4
     processes = max(1, int(os.environ.get("LOCAL_WORLD_SIZE", "1")))
     available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // processes
     if needed <= available:
@@ -242,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
                          schedule=args.schedule, seed=args.seed, crop=tuple(args.crop),
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, edge_region=args.edge_region,
-                         sgm_loss=args.sgm_loss,
+                         sgm_loss=args.sgm_loss, both_views=args.both_views,
                          rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,

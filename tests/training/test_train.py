@@ -414,7 +414,7 @@ def test_the_training_step_benchmark_times_both_losses_and_restores_the_trainer(
     from training.losses import pixel_losses
     from training.trainer import objective
 
-    for loss in ("candidates", "banded"):
+    for loss in ("candidates", "banded", "both-views"):
         seconds = step_seconds(config="11-5conv", channels=4, batch_size=1, steps=1, threads=1, loss=loss,
                                 kept=False)
         assert 0 < seconds < 60

@@ -18,6 +18,7 @@ from training.losses import (
     labelled_pixels,
     matching_loss,
     pixel_losses,
+    right_view_examples,
 )
 from training.networks import TowerPair, dense_features
 from training.sgm_loss import DEFAULT_PENALTIES, aggregated_losses, check_sgm_share
@@ -26,7 +27,8 @@ from training.sgm_loss import DEFAULT_PENALTIES, aggregated_losses, check_sgm_sh
 class Objective(nn.Module):
     def __init__(self, model: TowerPair, *, mode: str, label: str = "paper",
                  edge_weight: float = 0.0, edge_region: str = "both", sgm_share: float = 0.0,
-                 sgm_disparities: int = 128, sgm_penalties: tuple[float, float] = DEFAULT_PENALTIES) -> None:
+                 sgm_disparities: int = 128, sgm_penalties: tuple[float, float] = DEFAULT_PENALTIES,
+                 both_views: bool = False) -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
@@ -44,6 +46,12 @@ class Objective(nn.Module):
         check_sgm_share(sgm_share)
         if sgm_share and mode == "patch":
             raise ValueError("the loss after SGM needs the dense cost volume of crops (--mode dense)")
+        if both_views and (mode == "patch" or sgm_share):
+            raise ValueError("the right view's loss needs dense crops (--mode dense) and the raw costs "
+                             "(no --sgm-loss)")
+        # Eq. (18) from the right view too: each seen match also trains the right pixel against the
+        # left row, the softmax the runtime's right-view pass and the left-right check rely on.
+        self.both_views = both_views
         # The share of the loss taken after SGM (training.sgm_loss), the rest on the raw costs.
         self.sgm_share, self.sgm_disparities, self.sgm_penalties = sgm_share, sgm_disparities, sgm_penalties
         self.model, self.mode, self.label, self.edge_weight = model, mode, label, edge_weight
@@ -63,13 +71,13 @@ class Objective(nn.Module):
             features_right = dense_features(self.model.right, right)
         features_left, features_right = features_left.float(), features_right.float()
         temperature = self.model.log_temperature.exp()
-        pixels, truth, shift = labelled_pixels(target)
+        pixels, truth, labelled_shift = labelled_pixels(target)
         if pixels.shape[0] == 0:
             # No labelled pixel (possible on a dataset crop): a zero that still touches every weight,
             # so DDP's gradient all-reduce sees the same parameters on every process.
             return (features_left.sum() + features_right.sum()) * 0.0 + temperature * 0.0, 0
         shape, fractional = LABELS[self.label]
-        shift = shift if fractional else None
+        shift = labelled_shift if fractional else None
         # Pixels near depth edges count (1 + edge_weight) times: the weighted mean of eq. (18).
         weights = depth_edge_weights(target, pixels, weight=self.edge_weight, radius=self.edge_radius,
                                      region=self.edge_region) if self.edge_weight else None
@@ -78,6 +86,16 @@ class Objective(nn.Module):
             losses = pixel_losses(features_left, features_right, pixels, truth, temperature=temperature,
                                   shift=shift, shape=shape)
             loss = (1 - self.sgm_share) * _mean(losses, weights)
+        if self.both_views:
+            # The right view's pixels are the left view's of the mirrored, swapped pair; each keeps the
+            # weight of the left pixel whose match it is.
+            mirrored, right_truth, right_shift, chosen = right_view_examples(
+                pixels, truth, labelled_shift, size=(target.shape[0], target.shape[1], target.shape[2]))
+            if chosen.numel():
+                losses = pixel_losses(features_right.flip(3), features_left.flip(3), mirrored, right_truth,
+                                      temperature=temperature, shift=right_shift if fractional else None,
+                                      shape=shape)
+                loss = 0.5 * (loss + _mean(losses, None if weights is None else weights[chosen]))
         if self.sgm_share:
             losses = aggregated_losses(features_left, features_right, pixels, truth, temperature=temperature,
                                        disparities=self.sgm_disparities, penalties=self.sgm_penalties,
