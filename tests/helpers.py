@@ -1,6 +1,7 @@
 """What tests share beside fixtures: the checkout's folder, ``require`` (the one way a test leaves out a
 missing prerequisite: skipped locally, failed in CI) and the Cones pair through it, a synthetic slanted
-plane of known disparity, unit-norm random feature maps, a ready in-process service, an instant stand-in
+plane of known disparity, unit-norm random feature maps, a tiny tower pair with a two-surface crop for the
+trainer's objective, a ready in-process service, an instant stand-in
 for the Matcher, and a tiny PNG pair for service tests that do not need real matching. Fixtures stay in
 conftest.py. Tests import it as ``tests.helpers`` (tests/ is a package, docs/architecture.md, "Tests")."""
 
@@ -111,6 +112,22 @@ def unit_features(rng: np.random.Generator, channels: int, height: int, width: i
     """float32 (C, H, W) features with unit L2 norm over C, like the towers' output."""
     features = rng.standard_normal((channels, height, width)).astype(np.float32)
     return features / np.linalg.norm(features, axis=0, keepdims=True)
+
+
+def two_surface_crop(seed: int) -> tuple:
+    """A 9-4conv tower pair (8 channels, shared) built after ``torch.manual_seed(seed)``, a random 1 x 3 x
+    24 x 48 left and right view, and their truth [1, 24, 48]: disparity 3 left of column 30, 8 from it.
+    torch is imported here, not above, so that the serve-only suite (no torch) can import this module."""
+    import torch
+
+    from training.networks import build_tower_pair
+
+    torch.manual_seed(seed)
+    model = build_tower_pair("9-4conv", channels=8, shared=True)
+    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
+    disparity = torch.full((1, 24, 48), 3.0)
+    disparity[:, :, 30:] = 8.0
+    return model, left, right, disparity
 
 
 @contextlib.asynccontextmanager

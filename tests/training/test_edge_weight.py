@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from tests.helpers import two_surface_crop
 from training.losses import dense_candidates, depth_edge_weights, matching_loss
 from training.networks import build_tower_pair, dense_features
 from training.train import main as train_main
@@ -70,11 +71,7 @@ def test_the_objective_reaches_as_far_as_the_towers_see() -> None:
 
 
 def test_the_objective_is_the_weighted_mean_of_eq_18() -> None:
-    torch.manual_seed(0)
-    model = build_tower_pair("9-4conv", channels=8, shared=True)
-    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
-    disparity = torch.full((1, 24, 48), 3.0)
-    disparity[:, :, 30:] = 8.0
+    model, left, right, disparity = two_surface_crop(0)
     loss, count = Objective(model, mode="dense", edge_weight=2.0)(left, right, disparity)
     plain, plain_count = Objective(model, mode="dense")(left, right, disparity)
     loss, plain = loss.detach(), plain.detach()

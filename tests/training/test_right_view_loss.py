@@ -7,6 +7,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from tests.helpers import two_surface_crop
 from training.losses import (
     HALF_RANGE,
     LABELS,
@@ -16,7 +17,7 @@ from training.losses import (
     right_view_examples,
     soft_label,
 )
-from training.networks import build_tower_pair, dense_features
+from training.networks import dense_features
 from training.train import main as train_main
 from training.trainer.objective import Objective
 
@@ -78,11 +79,7 @@ def test_the_mirrored_loss_is_the_right_pixels_cross_entropy_over_the_left_row(l
 
 
 def test_the_objective_averages_the_two_views_and_refuses_what_it_cannot_take() -> None:
-    torch.manual_seed(0)
-    model = build_tower_pair("9-4conv", channels=8, shared=True)
-    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
-    disparity = torch.full((1, 24, 48), 3.0)
-    disparity[:, :, 30:] = 8.0
+    model, left, right, disparity = two_surface_crop(0)
     with torch.no_grad():
         left_only, count = Objective(model, mode="dense")(left, right, disparity)
         both, both_count = Objective(model, mode="dense", both_views=True)(left, right, disparity)

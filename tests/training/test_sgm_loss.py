@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from service.optimization.sgm import aggregate
+from tests.helpers import two_surface_crop
 from training.losses import SHARP_LABEL, dense_candidates, matching_loss
-from training.networks import build_tower_pair, dense_features
+from training.networks import dense_features
 from training.sgm_loss import aggregated_losses, cost_volume, volume_disparities
 from training.sgm_paths import sgm_paths
 from training.train import main as train_main
@@ -98,11 +99,7 @@ def test_the_loss_is_eq_18_over_the_aggregated_costs_of_every_disparity() -> Non
 
 
 def test_the_objective_mixes_the_two_losses_by_the_share() -> None:
-    torch.manual_seed(3)
-    model = build_tower_pair("9-4conv", channels=8, shared=True)
-    left, right = torch.rand(1, 3, 24, 48), torch.rand(1, 3, 24, 48)
-    disparity = torch.full((1, 24, 48), 3.0)
-    disparity[:, :, 30:] = 8.0
+    model, left, right, disparity = two_surface_crop(3)
     with torch.no_grad():
         raw, count = Objective(model, mode="dense")(left, right, disparity)
         after, after_count = Objective(model, mode="dense", sgm_share=1.0, sgm_disparities=16)(
