@@ -50,7 +50,10 @@ def step_seconds(*, config: str, channels: int, batch_size: int, steps: int, thr
     from training.trainer import objective
     from training.trainer.batches import BatchSpec, TrainingData
 
-    def candidate_losses(features_left, features_right, pixels, truth, *, temperature, shift, shape):
+    def candidate_losses(features_left, features_right, pixels, truth, *, temperature, shift, shape,
+                         vertex_weight=0.0, fractional_shift=None):
+        if vertex_weight:
+            raise ValueError("the candidates variant times eq. (18) alone (no --subpixel-loss)")
         logits, inside = pixel_candidates(features_left, features_right, pixels, truth,
                                           temperature=temperature)
         return matching_loss(logits, inside, shift=shift, shape=shape, reduction="none")

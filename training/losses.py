@@ -144,7 +144,8 @@ def pixel_candidates(features_left: torch.Tensor, features_right: torch.Tensor, 
 
 def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixels: torch.Tensor,
                  truth: torch.Tensor, *, temperature: torch.Tensor | float, shift: torch.Tensor | None = None,
-                 shape: tuple[float, ...] = SOFT_LABEL, half_range: int = HALF_RANGE) -> torch.Tensor:
+                 shape: tuple[float, ...] = SOFT_LABEL, half_range: int = HALF_RANGE,
+                 vertex_weight: float = 0.0, fractional_shift: torch.Tensor | None = None) -> torch.Tensor:
     """Eq. (18) per pixel [M]: ``matching_loss(*pixel_candidates(...), shift=shift, shape=shape,
     reduction="none")``, computed without the candidates' [M, 2 * half_range + 1] tensors.
 
@@ -154,9 +155,15 @@ def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixe
     reads the label's few taps. The candidate tensors, their label, mask and softmax (each as large as
     the volume) were most of a CPU step's time; this is the trainer's dense objective
     (``python -m bench training_step`` measures both).
+
+    ``vertex_weight`` w > 0 adds ``w * |vertex error|`` per pixel (:func:`vertex_errors`, the runtime's
+    quadratic sub-pixel fit at the true match, against the fractional truth ``round(d) - fractional_shift``;
+    the project's extension, not the paper's).
     """
     if half_range < 3:
         raise ValueError(f"the label's taps reach 3 candidates from the truth; half_range {half_range} < 3")
+    if not vertex_weight >= 0 or (vertex_weight and fractional_shift is None):
+        raise ValueError(f"a vertex weight is >= 0 and needs the fractional shift, got {vertex_weight}")
     batch, _, height, width = features_left.shape
     b, y, x = pixels.unbind(1)
     # The temperature scales one feature map, not the volume: one pass over [B, C, H, W] instead.
@@ -175,10 +182,36 @@ def pixel_losses(features_left: torch.Tensor, features_right: torch.Tensor, pixe
         taps = shifted_label(taps, shift)
     # Candidate n is column x - truth - half_range + n, so offset o from the truth is column x - truth + o.
     tap_columns = (x - truth)[:, None] + torch.arange(-3, 4, device=scores.device)[None, :]
-    taps = taps * ((tap_columns >= 0) & (tap_columns < width))
+    tap_inside = (tap_columns >= 0) & (tap_columns < width)
+    taps = taps * tap_inside
     taps = taps / taps.sum(dim=1, keepdim=True)
     tap_scores = scores[b[:, None], y[:, None], x[:, None], tap_columns.clamp(0, width - 1)]
-    return normaliser - (taps * tap_scores).sum(dim=1)
+    losses = normaliser - (taps * tap_scores).sum(dim=1)
+    if vertex_weight:
+        assert fractional_shift is not None
+        fitted = tap_inside[:, 2] & tap_inside[:, 4]
+        losses = losses + vertex_weight * vertex_errors(tap_scores[:, 2:5], fractional_shift).abs() * fitted
+    return losses
+
+
+def vertex_errors(scores: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """The runtime's sub-pixel estimate minus the fractional truth, in pixels [M], differentiable.
+
+    ``scores`` [M, 3]: similarity at the right columns ``x - round(d) - 1, x - round(d), x - round(d) + 1``
+    (disparities ``round(d) + 1, round(d), round(d) - 1``); ``shift`` [M] = ``round(d) - d``. The cost is
+    the negated score, and the fit is ``service.refinement.subpixel``'s: the vertex of the parabola
+    through the three costs, clamped to +-0.5, none (the rounded truth) where the parabola does not open
+    upwards. Bad-1 on real pairs is where the towers trail a 3x3 NCC, and this is the figure it reads.
+    """
+    if scores.ndim != 2 or scores.shape[1] != 3 or shift.shape != scores.shape[:1]:
+        raise ValueError(f"scores must be [M, 3] and shift [M], got {tuple(scores.shape)} and "
+                         f"{tuple(shift.shape)}")
+    after, centre, before = (-scores).unbind(1)      # costs at d + 1, d, d - 1
+    curvature = before - 2.0 * centre + after
+    opens_up = curvature > 0
+    offset = (before - after) / (2.0 * torch.where(opens_up, curvature, torch.ones_like(curvature)))
+    offset = torch.where(opens_up, offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
+    return offset + shift.to(offset.dtype)
 
 
 def right_view_examples(pixels: torch.Tensor, truth: torch.Tensor, shift: torch.Tensor, *,

@@ -91,6 +91,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="dense mode: eq. (18) from the right view too: every match the right view "
                              "sees also trains its right pixel against the left row (the loss the mean of "
                              "both views'; default: the left view's only, as the paper)")
+    parser.add_argument("--subpixel-loss", type=float, default=0.0, metavar="W",
+                        help="dense mode: add W x |the runtime's quadratic sub-pixel fit at the true match "
+                             "minus the fractional truth| (pixels) to each pixel's loss (default 0: the "
+                             "paper's; docs/training.md)")
     parser.add_argument("--rectification-error", action="store_true",
                         help="synthetic data: misalign each right view vertically by up to ~1 px (shift, "
                              "rotation, scale: training.data.synthetic.Rectification)")
@@ -248,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
                          max_disparity=args.max_disparity, augmentation=args.augmentation, label=args.label,
                          edge_weight=args.edge_weight, edge_region=args.edge_region,
                          sgm_loss=args.sgm_loss, both_views=args.both_views,
+                         subpixel_loss=args.subpixel_loss,
                          rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,

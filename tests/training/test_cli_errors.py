@@ -66,6 +66,9 @@ def test_train_refuses_bad_numbers_and_devices_before_writing(tmp_path, capsys, 
 def test_train_refuses_nan_edge_weight_and_the_validation_split_as_data(tmp_path, capsys):
     assert train_main([*TINY, "--edge-weight", "nan", "--out", str(tmp_path / "a")]) == 1
     assert "depth-edge weight must be >= 0 and finite" in _one_line_error(capsys, "training.train")
+    assert train_main([*TINY, "--subpixel-loss", "nan", "--out", str(tmp_path / "c")]) == 1
+    message = _one_line_error(capsys, "training.train")
+    assert "vertex weight (--subpixel-loss) must be >= 0 and finite" in message
     assert train_main([*TINY, "--data", "synthetic:5", "--out", str(tmp_path / "b")]) == 1
     assert "synthetic validation split" in _one_line_error(capsys, "training.train")
 

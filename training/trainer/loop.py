@@ -63,6 +63,7 @@ class TrainConfig:
     edge_region: str = "both"           # training.losses.EDGE_REGIONS: where edge_weight applies
     sgm_loss: float = 0.0               # share of the loss after SGM (training.sgm_loss); 0: the paper's
     both_views: bool = False            # eq. (18) from the right view too (Objective); False: the paper's
+    subpixel_loss: float = 0.0          # weight of |sub-pixel vertex error| per pixel (Objective); 0: paper
     rectification_error: bool = False   # synthetic right views slightly misaligned (batches.BatchSpec)
     vignetting: float = 0.0             # synthetic per-view vignetting strength up to this
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
@@ -151,7 +152,7 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
         best = checkpoint.config.get("best")
     objective = Objective(model, mode=config.mode, label=config.label, edge_weight=config.edge_weight,
                           edge_region=config.edge_region, sgm_share=config.sgm_loss,
-                          both_views=config.both_views,
+                          both_views=config.both_views, vertex_weight=config.subpixel_loss,
                           sgm_disparities=volume_disparities(config.max_disparity, config.crop[1]))
     wrapped = DistributedDataParallel(objective) if world > 1 else objective
     history = out / "history.jsonl"

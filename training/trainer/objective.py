@@ -6,6 +6,8 @@ of eq. (18). Patch: the paper's 37x37 patches against 37x237 strips. Both return
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -28,7 +30,7 @@ class Objective(nn.Module):
     def __init__(self, model: TowerPair, *, mode: str, label: str = "paper",
                  edge_weight: float = 0.0, edge_region: str = "both", sgm_share: float = 0.0,
                  sgm_disparities: int = 128, sgm_penalties: tuple[float, float] = DEFAULT_PENALTIES,
-                 both_views: bool = False) -> None:
+                 both_views: bool = False, vertex_weight: float = 0.0) -> None:
         super().__init__()
         if mode not in ("dense", "patch"):
             raise ValueError(f"mode must be 'dense' or 'patch', got {mode!r}")
@@ -49,6 +51,14 @@ class Objective(nn.Module):
         if both_views and (mode == "patch" or sgm_share):
             raise ValueError("the right view's loss needs dense crops (--mode dense) and the raw costs "
                              "(no --sgm-loss)")
+        if not math.isfinite(vertex_weight) or vertex_weight < 0 or (
+                vertex_weight and (mode == "patch" or sgm_share == 1)):
+            raise ValueError(f"the sub-pixel vertex weight (--subpixel-loss) must be >= 0 and finite and "
+                             f"needs the raw costs of dense crops (--mode dense, --sgm-loss below 1), got "
+                             f"{vertex_weight}")
+        # The runtime's quadratic sub-pixel fit at the true match, against the fractional truth
+        # (training.losses.vertex_errors): a term on what bad-1 reads, which eq. (18) does not see.
+        self.vertex_weight = vertex_weight
         # Eq. (18) from the right view too: each seen match also trains the right pixel against the
         # left row, the softmax the runtime's right-view pass and the left-right check rely on.
         self.both_views = both_views
@@ -84,7 +94,8 @@ class Objective(nn.Module):
         loss = 0.0
         if self.sgm_share < 1:
             losses = pixel_losses(features_left, features_right, pixels, truth, temperature=temperature,
-                                  shift=shift, shape=shape)
+                                  shift=shift, shape=shape, vertex_weight=self.vertex_weight,
+                                  fractional_shift=labelled_shift)
             loss = (1 - self.sgm_share) * _mean(losses, weights)
         if self.both_views:
             # The right view's pixels are the left view's of the mirrored, swapped pair; each keeps the
@@ -94,7 +105,8 @@ class Objective(nn.Module):
             if chosen.numel():
                 losses = pixel_losses(features_right.flip(3), features_left.flip(3), mirrored, right_truth,
                                       temperature=temperature, shift=right_shift if fractional else None,
-                                      shape=shape)
+                                      shape=shape, vertex_weight=self.vertex_weight,
+                                      fractional_shift=right_shift)
                 loss = 0.5 * (loss + _mean(losses, None if weights is None else weights[chosen]))
         if self.sgm_share:
             losses = aggregated_losses(features_left, features_right, pixels, truth, temperature=temperature,
