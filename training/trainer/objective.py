@@ -6,8 +6,6 @@ of eq. (18). Patch: the paper's 37x37 patches against 37x237 strips. Both return
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import nn
 
@@ -51,8 +49,7 @@ class Objective(nn.Module):
         if both_views and (mode == "patch" or sgm_share):
             raise ValueError("the right view's loss needs dense crops (--mode dense) and the raw costs "
                              "(no --sgm-loss)")
-        if not math.isfinite(vertex_weight) or vertex_weight < 0 or (
-                vertex_weight and (mode == "patch" or sgm_share == 1)):
+        if not 0 <= vertex_weight < float("inf") or (vertex_weight and (mode == "patch" or sgm_share == 1)):
             raise ValueError(f"the sub-pixel vertex weight (--subpixel-loss) must be >= 0 and finite and "
                              f"needs the raw costs of dense crops (--mode dense, --sgm-loss below 1), got "
                              f"{vertex_weight}")
