@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from training.data.evaluation_only import CONES_SPEC
+from training.data.synthetic import PHOTO_SHARE
 from training.losses import EDGE_REGIONS, LABELS
 from training.networks import DEFAULT_CONFIG, build_tower_pair, list_configs
 from training.schedule import DEFAULT_SCHEDULE, SCHEDULES
@@ -113,6 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="synthetic data: paint this share of the surfaces at twice the spatial "
                              "frequency (finer detail, as real photographs have); the rest of each scene "
                              "stays that of a run without it (default 0; docs/data.md)")
+    parser.add_argument("--photo-textures", type=float, default=PHOTO_SHARE, metavar="P",
+                        help="synthetic data: paint this share of the surfaces with one of the bundled "
+                             f"photos instead of a procedural texture (default {PHOTO_SHARE}, the "
+                             "validation split's share; docs/data.md)")
     parser.add_argument("--downsampled-views", type=float, default=0.0, metavar="P",
                         help="synthetic data: render and photograph this share of the scenes at twice the "
                              "size, then average 2 x 2 (a downsampled photograph, as the real evaluation "
@@ -186,8 +191,8 @@ def argument_problem(args: argparse.Namespace) -> str | None:
             return f"--adaptive-support: {error}"
     if args.edge_region != "both" and not args.edge_weight:
         return f"--edge-region {args.edge_region} only says where --edge-weight applies; give a weight > 0"
-    # (--edge-weight, --vignetting, --clean-views, --curved-surfaces, --fine-textures and
-    # --downsampled-views are checked where they are used, NaN included.)
+    # (--edge-weight, --vignetting, --clean-views, --curved-surfaces, --fine-textures, --photo-textures
+    # and --downsampled-views are checked where they are used, NaN included.)
     floats = (("lr", args.lr, True), ("temperature", args.temperature, True),
               ("time-budget", args.time_budget, False))
     for name, value, positive in floats:
@@ -256,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
                          rectification_error=args.rectification_error,
                          vignetting=args.vignetting, clean_views=args.clean_views,
                          curved_surfaces=args.curved_surfaces, fine_textures=args.fine_textures,
+                         photo_textures=args.photo_textures,
                          downsampled_views=args.downsampled_views,
                          camera_draws=args.camera_draws, val_every=args.val_every, val_pairs=args.val_pairs,
                          cones=args.cones, out=args.out,

@@ -7,6 +7,7 @@ import pytest
 
 from service.datasets import StereoSample
 from training.data.synthetic.generator import (
+    PHOTO_SHARE,
     VALIDATION_CONFIG,
     VALIDATION_SEED,
     SyntheticConfig,
@@ -157,6 +158,20 @@ def test_curved_surfaces_leave_the_rest_of_the_scene_and_the_split_unchanged():
     with pytest.raises(ValueError, match="shapes"):
         random_scene(np.random.default_rng(0), height=64, width=64, max_disparity=8, photo_probability=0,
                      curved_surfaces=0.5)
+
+
+@pytest.mark.torch  # the train extra: scikit-image's photos paint the scenes
+def test_the_photo_share_decides_how_many_surfaces_show_a_photo():
+    photos = {id(photo) for photo in load_photos()}
+    def photo_share(share: float) -> float:
+        layers = [layer for seed in range(12) for layer in random_scene(
+            np.random.default_rng(seed), height=128, width=256, max_disparity=48, photo_probability=share)]
+        return float(np.mean([id(layer.texture.image) in photos for layer in layers]))
+    assert photo_share(0.0) == 0.0 and photo_share(1.0) == 1.0
+    assert 0.2 < photo_share(PHOTO_SHARE) < 0.5 < photo_share(0.7) < 0.85
+    assert VALIDATION_CONFIG.photo_probability == PHOTO_SHARE
+    with pytest.raises(ValueError, match="photo textures"):
+        SyntheticConfig(photo_probability=1.2)
 
 
 def test_a_minified_texture_shows_the_block_means_at_twice_the_frequency():

@@ -15,6 +15,7 @@ from service.datasets import open_dataset
 from tests.helpers import ROOT
 from training.checkpoint import load_checkpoint
 from training.data.evaluation_only import CONES_FOLDER as CONES
+from training.data.synthetic import PHOTO_SHARE
 from training.evaluation import TorchTowers, tune_sgm
 from training.networks import build_tower_pair
 from training.schedule import FLOOR_FRACTION, learning_rate
@@ -303,6 +304,9 @@ def test_the_data_levers_reach_the_generator() -> None:
     assert rng_a.random() == rng_c.random()
     np.testing.assert_array_equal(a.disparity, c.disparity)
     assert not np.array_equal(a.left, c.left)
+    photos = TrainingData("synthetic", seed=0, spec=BatchSpec(photo_textures=0.7))
+    assert plain.synthetic.photo_probability == PHOTO_SHARE and photos.synthetic.photo_probability == 0.7
+    assert not np.array_equal(plain.sample(3)[0].left, photos.sample(3)[0].left)
 
 
 @pytest.mark.parametrize("flag, field, message", [
@@ -311,6 +315,7 @@ def test_the_data_levers_reach_the_generator() -> None:
     ("--curved-surfaces", "curved_surfaces", "curved surfaces must be a share in [0, 1], got"),
     ("--fine-textures", "fine_textures", "fine textures must be a share in [0, 1], got"),
     ("--downsampled-views", "downsampled_views", "downsampled views must be a share in [0, 1], got"),
+    ("--photo-textures", "photo_textures", "photo textures must be a share in [0, 1], got"),
 ])
 def test_bad_data_lever_values_are_refused(tmp_path, capsys, flag, field, message) -> None:
     with pytest.raises(ValueError, match=re.escape(message)):

@@ -25,6 +25,7 @@ from training.data.evaluation_only import EVALUATION_ONLY, MOTORCYCLE_SPEC
 from training.data.samples import Crop, PatchPairs, random_crop, random_patch_pairs
 from training.data.synthetic import (
     DOWNSAMPLING,
+    PHOTO_SHARE,
     VALIDATION_SEED,
     Photometric,
     Rectification,
@@ -60,6 +61,7 @@ class BatchSpec:
     clean_views: float = 0.0       # synthetic: share of pairs rendered without camera effects (8-bit only)
     curved_surfaces: float = 0.0   # synthetic: share of objects that bulge towards the cameras, shaded
     fine_textures: float = 0.0     # synthetic: share of surfaces painted at twice the spatial frequency
+    photo_textures: float = PHOTO_SHARE  # synthetic: share of surfaces painted with a photo
     # synthetic: share of scenes rendered and photographed at twice the size, then averaged 2 x 2 (a
     # downsampled photograph, as the real evaluation pairs are; SyntheticConfig.downsampling)
     downsampled_views: float = 0.0
@@ -75,6 +77,7 @@ class BatchSpec:
         check_share("clean views", self.clean_views)
         check_share("curved surfaces", self.curved_surfaces)
         check_share("fine textures", self.fine_textures)
+        check_share("photo textures", self.photo_textures)
         check_share("downsampled views", self.downsampled_views)
         if isinstance(self.camera_draws, bool) or not isinstance(self.camera_draws, int) \
                 or self.camera_draws < 1:
@@ -99,7 +102,8 @@ class TrainingData:
             height=spec.height, width=spec.width, max_disparity=spec.max_disparity,
             photometric=Photometric(vignetting=(0.0, spec.vignetting)),
             rectification=Rectification() if spec.rectification_error else None,
-            curved_surfaces=spec.curved_surfaces, fine_textures=spec.fine_textures)
+            curved_surfaces=spec.curved_surfaces, fine_textures=spec.fine_textures,
+            photo_probability=spec.photo_textures)
         # The last scene rendered, with its stream's state where the scene's draws end: the examples that
         # share a scene are consecutive, so one entry serves a whole batch's.
         self._scene: tuple[int, Rendering, dict] | None = None

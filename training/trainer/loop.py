@@ -26,6 +26,7 @@ from service.features.defaults import RUNTIME_DEFAULTS
 from training.allocator import keep_freed_memory
 from training.checkpoint import load_checkpoint, save_checkpoint
 from training.data.evaluation_only import CONES_NAME, CONES_SPEC
+from training.data.synthetic import PHOTO_SHARE
 from training.evaluation import runtime_metrics
 from training.model_folder import load_start
 from training.networks import build_tower_pair, get_config
@@ -69,6 +70,7 @@ class TrainConfig:
     clean_views: float = 0.0            # synthetic: share of pairs without camera effects
     curved_surfaces: float = 0.0        # synthetic: share of objects that bulge towards the cameras
     fine_textures: float = 0.0          # synthetic: share of surfaces painted at twice the frequency
+    photo_textures: float = PHOTO_SHARE  # synthetic: share of surfaces painted with a photo
     downsampled_views: float = 0.0      # synthetic: share of scenes photographed at 2x, averaged 2 x 2
     camera_draws: int = 1               # synthetic: examples per rendered scene (fresh cameras each)
     val_every: int = 200
@@ -116,7 +118,8 @@ def train(config: TrainConfig, *, resume: str | None = None) -> dict[str, Any]:
                      patches_per_pair=per_example, augmentation=config.augmentation,
                      rectification_error=config.rectification_error, vignetting=config.vignetting,
                      clean_views=config.clean_views, curved_surfaces=config.curved_surfaces,
-                     fine_textures=config.fine_textures, downsampled_views=config.downsampled_views,
+                     fine_textures=config.fine_textures, photo_textures=config.photo_textures,
+                     downsampled_views=config.downsampled_views,
                      camera_draws=config.camera_draws,
                      patch=get_config(config.config).patch)
     data = TrainingData(config.data, seed=config.seed, spec=spec)

@@ -16,6 +16,7 @@ importing ``training``: pyproject.toml registers ``open_validation_split`` and i
 from .generator import (
     DEFAULT_VALIDATION_COUNT,
     DOWNSAMPLING,
+    PHOTO_SHARE,
     VALIDATION_CONFIG,
     VALIDATION_SEED,
     SyntheticConfig,
@@ -35,8 +36,8 @@ from .generator import (
 )
 from .photometric import Photometric, Rectification, apply_camera
 
-__all__ = ["DEFAULT_VALIDATION_COUNT", "DOWNSAMPLING", "VALIDATION_CONFIG", "VALIDATION_SEED", "Photometric",
-           "Rectification",
+__all__ = ["DEFAULT_VALIDATION_COUNT", "DOWNSAMPLING", "PHOTO_SHARE", "VALIDATION_CONFIG", "VALIDATION_SEED",
+           "Photometric", "Rectification",
            "SyntheticConfig", "SyntheticStereo", "apply_camera", "check_share", "generate",
            "open_clean_validation_split", "open_curved_validation_split",
            "open_downsampled_validation_split", "open_fine_validation_split",

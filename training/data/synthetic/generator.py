@@ -40,6 +40,7 @@ VALIDATION_SEED = 1_000_000_000
 DEFAULT_VALIDATION_COUNT = 20           # what the SPEC ``synthetic`` without ``:N`` means
 DIAGNOSTIC_SHARE = 0.5                  # the lever's share in the SPECs synthetic-curved and synthetic-fine
 DOWNSAMPLING = 2                        # the factor of the SPEC synthetic-downsampled and --downsampled-views
+PHOTO_SHARE = 0.35                      # share of surfaces painted with a photo (the split's)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -47,7 +48,7 @@ class SyntheticConfig:
     height: int = 256
     width: int = 512
     max_disparity: int = 128            # the nearest surface of a scene is at most this far
-    photo_probability: float = 0.35     # share of surfaces painted with a photo
+    photo_probability: float = PHOTO_SHARE  # share of surfaces painted with a photo
     photometric: Photometric | None = dataclasses.field(default_factory=Photometric)
     rectification: Rectification | None = None   # residual rectification error of the right view (training)
     curved_surfaces: float = 0.0        # training: share of objects that bulge towards the cameras, shaded
@@ -62,6 +63,7 @@ class SyntheticConfig:
             raise ValueError(f"synthetic images must be at least 8 x 8, got {self.height} x {self.width}")
         if self.max_disparity < 1:
             raise ValueError(f"max_disparity must be positive, got {self.max_disparity}")
+        check_share("photo textures", self.photo_probability)
         check_share("curved surfaces", self.curved_surfaces)
         check_share("fine textures", self.fine_textures)
         if isinstance(self.downsampling, bool) or not isinstance(self.downsampling, int) \
